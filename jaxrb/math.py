@@ -1,0 +1,103 @@
+"""Small, gradient-safe vector math written on components.
+
+Vectors keep their public trailing axis (``(..., 3)`` or ``(..., 2)``), but the
+kernels unpack the components and spell dot, cross and 3x3 products out: under
+``vmap`` on XLA's CPU backend this runs as wide elementwise loops instead of many
+tiny ones (see DESIGN.md, "Speed").
+
+Every function that can meet a zero (norms, divisions, normalisation) uses the
+double-``where`` trick so both the value and its gradient stay finite there.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def dot(a, b):
+    """Dot product over the last axis. a, b: (..., k). Returns (...)."""
+    return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
+
+
+def cross(a, b):
+    """3D cross product. a, b: (..., 3). Returns (..., 3)."""
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+
+
+def cross2(a, b):
+    """2D cross product (the z component). a, b: (..., 2). Returns (...)."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def cross_scalar2(w, r):
+    """w e_z x r for a scalar w: (...) and r: (..., 2). Returns (..., 2)."""
+    return jnp.stack([-w * r[..., 1], w * r[..., 0]], axis=-1)
+
+
+def safe_norm(x, axis=-1, keepdims=False):
+    """Euclidean norm whose gradient at x = 0 is 0 instead of NaN. x: (..., k)."""
+    sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
+    nonzero = sq > 0.0
+    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+
+
+def safe_div(num, den, fallback=0.0):
+    """num / den, and ``fallback`` (with zero gradient) where den == 0."""
+    nonzero = den != 0.0
+    return jnp.where(nonzero, num / jnp.where(nonzero, den, 1.0), fallback)
+
+
+def safe_normalize(x, axis=-1, fallback=None):
+    """x / |x| along ``axis``; where |x| = 0 returns ``fallback`` (default: zeros).
+
+    Args:
+        x: (..., k) vectors.
+        fallback: optional (k,) or (..., k) vector used where x is zero.
+    """
+    norm = safe_norm(x, axis=axis, keepdims=True)
+    nonzero = norm > 0.0
+    unit = x / jnp.where(nonzero, norm, 1.0)
+    if fallback is None:
+        fallback = jnp.zeros_like(x)
+    return jnp.where(nonzero, unit, jnp.broadcast_to(fallback, x.shape).astype(x.dtype))
+
+
+def matvec3(m, v):
+    """m @ v for 3x3 matrices on components. m: (..., 3, 3), v: (..., 3)."""
+    return jnp.stack(
+        [m[..., i, 0] * v[..., 0] + m[..., i, 1] * v[..., 1] + m[..., i, 2] * v[..., 2]
+         for i in range(3)], axis=-1)
+
+
+def inverse3(m):
+    """Closed-form inverse of 3x3 matrices via the adjugate. m: (..., 3, 3).
+
+    The caller guarantees invertibility (inertia tensors are validated at build
+    time); no pivoting is needed for the well-conditioned matrices we invert.
+    """
+    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    co00, co01, co02 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co00 + b * co01 + c * co02
+    inv_det = 1.0 / det
+    rows = [
+        [co00, c * h - b * i, b * f - c * e],
+        [co01, a * i - c * g, c * d - a * f],
+        [co02, b * g - a * h, a * e - b * d],
+    ]
+    return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2) * inv_det[..., None, None]
+
+
+def rot2(angle):
+    """2D rotation matrices. angle: (...). Returns (..., 2, 2)."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    return jnp.stack([jnp.stack([c, -s], axis=-1), jnp.stack([s, c], axis=-1)], axis=-2)
+
+
+def rotate2(angle, v):
+    """Rotate 2D vectors by ``angle``. angle: (...), v: (..., 2). Returns (..., 2)."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)

@@ -1,0 +1,270 @@
+"""Host-side scene builder: validates input and produces (Model, Params, State).
+
+Everything a user types passes through here once, in NumPy, so mistakes are
+caught at build time with a ``ValueError`` that names the body and the field,
+and nothing malformed ever reaches the compiled step.
+
+Conventions:
+    * ``pos`` given to :meth:`Scene.add_body` is the world position of the
+      body's own frame (the frame its shape or points are written in). The
+      state stores the centre of mass, ``pos + R·com``; for the symmetric
+      primitives the two coincide.
+    * ``angvel`` is in the world frame.
+    * Mass comes from ``mass`` (inertia scaled to match), else from ``density``
+      (default 1000 kg/m³, or kg/m² in 2D), else from the points of a
+      ``PointMasses`` body. ``inertia`` overrides the shape's inertia.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties
+from jaxrb.types import (CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, Model, Params, State,
+                         check_option)
+
+DEFAULT_DENSITY = 1000.0
+
+
+@dataclasses.dataclass
+class _Body:
+    name: str
+    shape: object
+    mass: float
+    inertia: np.ndarray  # (3, 3) or ()
+    com: np.ndarray  # (dim,)
+    pos: np.ndarray  # (dim,) centre of mass, world
+    quat: Optional[np.ndarray]
+    angle: Optional[float]
+    vel: np.ndarray
+    angvel: np.ndarray
+    friction: float
+    restitution: float
+    linear_damping: float
+    angular_damping: float
+
+
+class _Fields:
+    """Validation helpers that prefix every message with 'body i (name)'."""
+
+    def __init__(self, label: str):
+        self.label = label
+
+    def fail(self, field: str, message: str):
+        raise ValueError(f"{self.label}: field {field!r} {message}")
+
+    def array(self, field, value, shape):
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            self.fail(field, f"must be numeric, got {value!r}")
+        if array.shape != shape:
+            self.fail(field, f"must have shape {shape}, got {array.shape}")
+        if not np.all(np.isfinite(array)):
+            self.fail(field, f"must be finite, got {array.tolist()}")
+        return array
+
+    def scalar(self, field, value, low=None, high=None, low_open=False):
+        number = float(self.array(field, value, ()))
+        if low is not None and (number < low or (low_open and number == low)):
+            self.fail(field, f"must be {'>' if low_open else '>='} {low}, got {number}")
+        if high is not None and number > high:
+            self.fail(field, f"must be <= {high}, got {number}")
+        return number
+
+
+def _rotation_matrix(quat):
+    w, x, y, z = quat
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+class Scene:
+    """Collects bodies on the host, then builds the arrays the step runs on.
+
+    Args:
+        dim: 2 or 3.
+        gravity: (dim,) gravitational acceleration; default (0, -9.81) in 2D and
+            (0, 0, -9.81) in 3D.
+    """
+
+    def __init__(self, dim: int = 3, gravity=None):
+        if dim not in (2, 3):
+            raise ValueError(f"scene: 'dim' must be 2 or 3, got {dim!r}")
+        self.dim = dim
+        if gravity is None:
+            gravity = (0.0, -9.81) if dim == 2 else (0.0, 0.0, -9.81)
+        self.gravity = _Fields("scene").array("gravity", gravity, (dim,))
+        self._bodies: list[_Body] = []
+
+    @property
+    def num_bodies(self) -> int:
+        return len(self._bodies)
+
+    def add_body(self, shape=None, *, mass=None, density=None, inertia=None, pos=None,
+                 quat=None, angle=None, vel=None, angvel=None, friction=0.5, restitution=0.0,
+                 linear_damping=0.0, angular_damping=0.0, name: Optional[str] = None) -> int:
+        """Add a dynamic body and return its index.
+
+        Args:
+            shape: a shape from :mod:`jaxrb.shapes`, or ``None`` for a body given
+                only ``mass`` and ``inertia``.
+            mass: total mass (kg). Scales the shape's inertia to match.
+            density: kg/m³ (3D) or kg/m² (2D); used when ``mass`` is not given.
+            inertia: body-frame inertia about the centre of mass: (3,) principal
+                moments or (3, 3) in 3D, a scalar in 2D. Overrides the shape's.
+            pos: (dim,) world position of the body frame origin.
+            quat: (4,) orientation (w, x, y, z), 3D only; normalised here.
+            angle: orientation angle, 2D only.
+            vel: (dim,) linear velocity of the centre of mass.
+            angvel: (3,) world-frame angular velocity in 3D, a scalar in 2D.
+            friction: Coulomb coefficient >= 0.
+            restitution: in [0, 1].
+            linear_damping, angular_damping: rates >= 0 in 1/s.
+            name: used in messages; default ``"body<i>"``.
+        """
+        dim, index = self.dim, len(self._bodies)
+        name = name if name is not None else f"body{index}"
+        check = _Fields(f"body {index} ({name!r})")
+
+        if shape is not None and dim not in getattr(shape, "dims", ()):
+            check.fail("shape", f"{type(shape).__name__} is not a {dim}D shape")
+        if shape is None and (mass is None or inertia is None):
+            check.fail("shape", "is None, so both 'mass' and 'inertia' must be given")
+        if isinstance(shape, PointMasses) and (mass is not None or density is not None):
+            check.fail("mass", "must not be given for PointMasses: it comes from the points")
+        if mass is not None and density is not None:
+            check.fail("density", "must not be given together with 'mass'")
+
+        if shape is not None:
+            shape_density = DEFAULT_DENSITY if density is None else check.scalar(
+                "density", density, low=0.0, low_open=True)
+            try:
+                shape_mass, com, shape_inertia = mass_properties(shape, shape_density, dim)
+            except ShapeError as error:
+                check.fail(error.field, error.message)
+            if mass is not None:
+                body_mass = check.scalar("mass", mass, low=0.0, low_open=True)
+                shape_inertia = np.asarray(shape_inertia) * (body_mass / shape_mass)
+            else:
+                body_mass = shape_mass
+        else:
+            body_mass = check.scalar("mass", mass, low=0.0, low_open=True)
+            com, shape_inertia = np.zeros(dim), None
+
+        if inertia is not None:
+            if dim == 2:
+                shape_inertia = check.scalar("inertia", inertia)
+            else:
+                given = np.asarray(inertia, dtype=np.float64)
+                shape_inertia = np.diag(check.array("inertia", given, (3,))) if given.shape == (3,) \
+                    else check.array("inertia", given, (3, 3))
+        try:
+            check_inertia(shape_inertia, dim)
+        except ShapeError as error:
+            check.fail(error.field, error.message)
+
+        origin = check.array("pos", np.zeros(dim) if pos is None else pos, (dim,))
+        if dim == 3:
+            if angle is not None:
+                check.fail("angle", "is 2D only; use 'quat' in 3D")
+            quat = check.array("quat", (1.0, 0.0, 0.0, 0.0) if quat is None else quat, (4,))
+            norm = float(np.linalg.norm(quat))
+            if norm < 1e-12:
+                check.fail("quat", "must be non-zero")
+            quat = quat / norm
+            world_com = origin + _rotation_matrix(quat) @ com
+            angvel = check.array("angvel", np.zeros(3) if angvel is None else angvel, (3,))
+        else:
+            if quat is not None:
+                check.fail("quat", "is 3D only; use 'angle' in 2D")
+            angle = check.scalar("angle", 0.0 if angle is None else angle)
+            c, s = np.cos(angle), np.sin(angle)
+            world_com = origin + np.array([[c, -s], [s, c]]) @ com
+            angvel = check.array("angvel", 0.0 if angvel is None else angvel, ())
+        vel = check.array("vel", np.zeros(dim) if vel is None else vel, (dim,))
+
+        self._bodies.append(_Body(
+            name=name, shape=shape, mass=body_mass, inertia=np.asarray(shape_inertia),
+            com=np.asarray(com), pos=world_com, quat=quat if dim == 3 else None,
+            angle=angle if dim == 2 else None, vel=vel, angvel=angvel,
+            friction=check.scalar("friction", friction, low=0.0),
+            restitution=check.scalar("restitution", restitution, low=0.0, high=1.0),
+            linear_damping=check.scalar("linear_damping", linear_damping, low=0.0),
+            angular_damping=check.scalar("angular_damping", angular_damping, low=0.0)))
+        return index
+
+    def build(self, dt: float, integrator: str = "semi_implicit", orientation: Optional[str] = None,
+              contact: Optional[str] = None, substeps: int = 1, dtype=None):
+        """Validate the options and return ``(model, params, state)``.
+
+        Args:
+            dt: time step of one ``step`` call (s), > 0.
+            integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``.
+            orientation: ``"first_order"`` or ``"exp_map"`` (default). RK4 integrates
+                the quaternion ODE itself, so it takes no orientation option.
+            contact: ``"none"``, ``"penalty"`` or ``"impulse"``; default ``"none"``
+                for scenes where nothing can touch.
+            substeps: integration substeps per ``step`` call, >= 1.
+            dtype: floating dtype of Params and State; default JAX's default float
+                (float64 when x64 is enabled, else float32).
+        """
+        check = _Fields("scene.build")
+        if not self._bodies:
+            raise ValueError("scene.build: the scene has no bodies; add one with add_body")
+        dt = check.scalar("dt", dt, low=0.0, low_open=True)
+        check_option("integrator", integrator, INTEGRATORS)
+        if orientation is not None and integrator == "rk4":
+            raise ValueError("scene.build: 'orientation' does not apply to integrator 'rk4', "
+                             "which integrates the quaternion ODE itself; leave it unset")
+        orientation = check_option("orientation", "exp_map" if orientation is None else orientation,
+                                   ORIENTATIONS)
+        contact = check_option("contact", "none" if contact is None else contact, CONTACT_MODELS)
+        if contact != "none":
+            raise ValueError(f"scene.build: contact {contact!r} needs collision shapes and pairs, "
+                             "which this version does not build yet; use contact='none'")
+        if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
+            raise ValueError(f"scene.build: 'substeps' must be an integer >= 1, got {substeps!r}")
+        dtype = jax.dtypes.canonicalize_dtype(jnp.float64 if dtype is None else dtype)
+        if not jnp.issubdtype(dtype, jnp.floating):
+            raise ValueError(f"scene.build: 'dtype' must be a floating dtype, got {dtype}")
+
+        bodies, dim = self._bodies, self.dim
+        model = Model(
+            dim=dim, num_bodies=len(bodies), integrator=integrator, orientation=orientation,
+            contact=contact, substeps=int(substeps),
+            damping=any(b.linear_damping > 0.0 or b.angular_damping > 0.0 for b in bodies),
+            shapes=tuple(b.shape for b in bodies), names=tuple(b.name for b in bodies))
+
+        def stack(values):
+            return jnp.asarray(np.stack([np.asarray(v, dtype=np.float64) for v in values]), dtype=dtype)
+
+        num = len(bodies)
+        params = Params(
+            mass=stack([b.mass for b in bodies]),
+            inertia=stack([b.inertia for b in bodies]),
+            com_offset=stack([b.com for b in bodies]),
+            friction=stack([b.friction for b in bodies]),
+            restitution=stack([b.restitution for b in bodies]),
+            gravity=jnp.asarray(self.gravity, dtype=dtype),
+            dt=jnp.asarray(dt, dtype=dtype),
+            linear_damping=stack([b.linear_damping for b in bodies]),
+            angular_damping=stack([b.angular_damping for b in bodies]),
+            force=jnp.zeros((num, dim), dtype=dtype),
+            torque=jnp.zeros((num, 3) if dim == 3 else (num,), dtype=dtype))
+        state = State(
+            pos=stack([b.pos for b in bodies]),
+            vel=stack([b.vel for b in bodies]),
+            angvel=stack([b.angvel for b in bodies]),
+            quat=stack([b.quat for b in bodies]) if dim == 3 else None,
+            angle=stack([b.angle for b in bodies]) if dim == 2 else None,
+            time=jnp.zeros((), dtype=dtype))
+        return model, params, state

@@ -1,0 +1,142 @@
+"""The three kinds of data: static ``Model``, traced ``Params`` and ``State``.
+
+``Model`` decides which code is compiled (it is hashable and closed over by
+``make_step``); ``Params`` holds everything physical a user may fit or sweep;
+``State`` is what ``lax.scan`` carries from step to step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Optional
+
+import jax
+
+from jaxrb._struct import pytree_dataclass
+
+Array = jax.Array
+
+INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4")
+ORIENTATIONS = ("first_order", "exp_map")
+CONTACT_MODELS = ("none", "penalty", "impulse")
+
+
+def check_option(name: str, value: Any, valid: tuple) -> str:
+    """Return ``value`` if it is one of ``valid``, else raise a ValueError listing them."""
+    if value not in valid:
+        raise ValueError(
+            f"unknown {name} {value!r}; valid options are: {', '.join(map(repr, valid))}")
+    return value
+
+
+@dataclasses.dataclass(frozen=True)
+class Model:
+    """Static description of a scene: what gets compiled.
+
+    Attributes:
+        dim: 2 or 3.
+        num_bodies: number of dynamic bodies ``n``.
+        integrator: one of :data:`INTEGRATORS`.
+        orientation: one of :data:`ORIENTATIONS` (how the quaternion is advanced;
+            in 2D the angle is advanced exactly and this is recorded only).
+        contact: one of :data:`CONTACT_MODELS`.
+        substeps: integration substeps per call of ``step`` (each ``dt/substeps``).
+        damping: whether the linear/angular damping stage is compiled in.
+        shapes: per-body shape (hashable, or ``None`` for a body given only mass
+            and inertia); used by collision and rendering.
+        names: per-body names used in messages and summaries.
+    """
+
+    dim: int
+    num_bodies: int
+    integrator: str = "semi_implicit"
+    orientation: str = "exp_map"
+    contact: str = "none"
+    substeps: int = 1
+    damping: bool = False
+    shapes: tuple = ()
+    names: tuple = ()
+
+    def summary(self) -> str:
+        """A short human-readable account of what the compiled step contains."""
+        kinds: dict[str, int] = {}
+        for shape in self.shapes:
+            kind = type(shape).__name__ if shape is not None else "MassOnly"
+            kinds[kind] = kinds.get(kind, 0) + 1
+        body_text = ", ".join(f"{count} {kind}" for kind, count in sorted(kinds.items()))
+        stages = ["forces (gravity, constant and applied wrenches)"]
+        if self.damping:
+            stages.append("damping")
+        orientation = self.dim == 3 and self.integrator != "rk4"
+        stages.append(f"integrator {self.integrator}"
+                      + (f" + orientation {self.orientation}" if orientation else ""))
+        if self.contact != "none":
+            stages.append(f"contact {self.contact}")
+        return (f"jaxrb Model: {self.dim}D, {self.num_bodies} bodies ({body_text or 'none'}), "
+                f"substeps={self.substeps}; step = " + " -> ".join(stages))
+
+
+@pytree_dataclass
+class Params:
+    """Physical parameters: differentiable and vmappable.
+
+    Attributes:
+        mass: (n,) body masses.
+        inertia: (n, 3, 3) body-frame inertia tensors about the centre of mass
+            in 3D, or (n,) scalar moments in 2D.
+        com_offset: (n, dim) centre of mass in the body's own (shape) frame.
+        friction: (n,) Coulomb friction coefficients.
+        restitution: (n,) coefficients of restitution.
+        gravity: (dim,) gravitational acceleration.
+        dt: () time step of one call to ``step``.
+        linear_damping: (n,) rate c in dv/dt = -c v, 1/s.
+        angular_damping: (n,) rate c in dL/dt = -c L, 1/s.
+        force: (n, dim) constant world-frame force at each centre of mass.
+        torque: (n, 3) constant world-frame torque in 3D, (n,) in 2D.
+    """
+
+    mass: Array
+    inertia: Array
+    com_offset: Array
+    friction: Array
+    restitution: Array
+    gravity: Array
+    dt: Array
+    linear_damping: Array
+    angular_damping: Array
+    force: Array
+    torque: Array
+
+
+@pytree_dataclass
+class State:
+    """Dynamic state of every body.
+
+    Attributes:
+        pos: (n, dim) centre of mass, world frame.
+        vel: (n, dim) linear velocity of the centre of mass, world frame.
+        angvel: (n, 3) world-frame angular velocity in 3D, (n,) in 2D.
+        quat: (n, 4) unit quaternions (w, x, y, z) body-to-world in 3D; ``None`` in 2D.
+        angle: (n,) body-to-world rotation angle in 2D; ``None`` in 3D.
+        time: () simulated time.
+    """
+
+    pos: Array
+    vel: Array
+    angvel: Array
+    quat: Optional[Array]
+    angle: Optional[Array]
+    time: Array
+
+
+@pytree_dataclass
+class Wrench:
+    """Forces and torques applied during one step (held constant over it).
+
+    Attributes:
+        force: (n, dim) world-frame force at each centre of mass.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D.
+    """
+
+    force: Array
+    torque: Array
