@@ -29,11 +29,34 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
-from jaxrb.dynamics import apply_world_inertia, inverse_inertia
+from jaxrb.dynamics import inverse_inertia
 from jaxrb.math import cross, inverse3, matvec3
 from jaxrb.types import Model, Params, State
 
 GYRO_NEWTON_ITERATIONS = 2
+
+
+def angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body):
+    """World ω = R I⁻¹ Rᵀ L, computed as an update of a nearby body-frame ω.
+
+    ω_b' = ω_b + I⁻¹ (Rᵀ L − I ω_b). In exact arithmetic this is I⁻¹ Rᵀ L; in
+    floating point the inverse only multiplies the small change, so the fixed
+    rounding error of I⁻¹·I ≠ Id (about 1e-7 in float32) does not compound
+    step after step (it drifted |L| by 1e-3 over 4800 float32 steps before).
+
+    Args:
+        quat: (n, 4) orientation to evaluate at.
+        momentum: (n, 3) world angular momentum L.
+        params: Params (for the body-frame inertia).
+        inv_inertia: (n, 3, 3) body-frame inverse inertia.
+        angvel_body: (n, 3) body-frame ω near the answer (e.g. the step's start).
+
+    Returns:
+        ((n, 3) world ω, (n, 3) body-frame ω).
+    """
+    change = quat_ops.rotate_inverse(quat, momentum) - matvec3(params.inertia, angvel_body)
+    angvel_body = angvel_body + matvec3(inv_inertia, change)
+    return quat_ops.rotate(quat, angvel_body), angvel_body
 
 
 def _linear_accel(params, force):
@@ -66,11 +89,12 @@ def euler(model: Model, params: Params, state: State, force, torque, h) -> State
             alpha = alpha - params.angular_damping * state.angvel
         return state.replace(pos=pos, vel=vel, angle=state.angle + h * state.angvel,
                              angvel=state.angvel + h * alpha)
-    momentum = apply_world_inertia(state.quat, params.inertia, state.angvel)
+    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
+    momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
     torque_total = torque - params.angular_damping[:, None] * momentum if model.damping else torque
     quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, state.angvel, h)
-    momentum = momentum + h * torque_total
-    angvel = apply_world_inertia(quat, inverse_inertia(params, 3), momentum)
+    angvel, _ = angvel_from_momentum(quat, momentum + h * torque_total, params,
+                                     inverse_inertia(params, 3), angvel_body)
     return state.replace(pos=pos, vel=vel, quat=quat, angvel=angvel)
 
 
@@ -82,11 +106,12 @@ def semi_implicit(model: Model, params: Params, state: State, force, torque, h) 
                        params.angular_damping, h)
         return state.replace(pos=pos, vel=vel, angle=state.angle + h * angvel, angvel=angvel)
     inv_inertia = inverse_inertia(params, 3)
-    momentum = apply_world_inertia(state.quat, params.inertia, state.angvel)
+    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
+    momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
     momentum = _damp(model, momentum + h * torque, params.angular_damping, h)
-    angvel_mid = apply_world_inertia(state.quat, inv_inertia, momentum)
+    angvel_mid, angvel_body = angvel_from_momentum(state.quat, momentum, params, inv_inertia, angvel_body)
     quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, angvel_mid, h)
-    angvel = apply_world_inertia(quat, inv_inertia, momentum)
+    angvel, _ = angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body)
     return state.replace(pos=pos, vel=vel, quat=quat, angvel=angvel)
 
 
@@ -159,10 +184,12 @@ def rk4(model: Model, params: Params, state: State, force, torque, h) -> State:
         return state.replace(pos=pos, angle=angle, vel=vel, angvel=angvel)
 
     inv_inertia = inverse_inertia(params, 3)
+    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
 
     def derivative(y):
         pos, quat, vel, momentum = y
-        angvel = apply_world_inertia(quat_ops.normalize(quat), inv_inertia, momentum)
+        angvel, _ = angvel_from_momentum(quat_ops.normalize(quat), momentum, params, inv_inertia,
+                                         angvel_body)
         omega = jnp.concatenate([jnp.zeros_like(angvel[..., :1]), angvel], axis=-1)
         dvel, dmomentum = accel, torque
         if model.damping:
@@ -170,11 +197,11 @@ def rk4(model: Model, params: Params, state: State, force, torque, h) -> State:
             dmomentum = dmomentum - params.angular_damping[:, None] * momentum
         return vel, 0.5 * quat_ops.multiply(omega, quat), dvel, dmomentum
 
-    momentum = apply_world_inertia(state.quat, params.inertia, state.angvel)
+    momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
     pos, quat, vel, momentum = _rk4_combine(derivative, (state.pos, state.quat, state.vel, momentum), h)
     quat = quat_ops.normalize(quat)
-    return state.replace(pos=pos, quat=quat, vel=vel,
-                         angvel=apply_world_inertia(quat, inv_inertia, momentum))
+    angvel, _ = angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body)
+    return state.replace(pos=pos, quat=quat, vel=vel, angvel=angvel)
 
 
 def _rk4_combine(derivative, y, h):

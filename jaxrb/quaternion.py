@@ -39,13 +39,20 @@ def normalize(q):
 
 
 def rotate(q, v):
-    """Rotate body vectors into the world: R(q) v. q: (..., 4) unit, v: (..., 3)."""
+    """Rotate body vectors into the world: R(q) v. q: (..., 4), v: (..., 3).
+
+    Exact for any non-zero q, not only unit ones: the rotation part is divided
+    by |q|². A renormalised float32 quaternion is 1 ± ~1e-7 long, with a bias,
+    and without this the world ↔ body round trip every step scaled ω by that
+    bias and drifted |L| by 1e-3 over 4800 steps.
+    """
     w, x, y, z = _parts(q)
     vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-    # v' = v + 2w (u x v) + 2 u x (u x v) with u = (x, y, z): no matrix needed.
-    tx = 2.0 * (y * vz - z * vy)
-    ty = 2.0 * (z * vx - x * vz)
-    tz = 2.0 * (x * vy - y * vx)
+    inv_norm_sq = 1.0 / (w * w + x * x + y * y + z * z)
+    # v' = v + (2w (u x v) + 2 u x (u x v)) / |q|² with u = (x, y, z): no matrix needed.
+    tx = 2.0 * inv_norm_sq * (y * vz - z * vy)
+    ty = 2.0 * inv_norm_sq * (z * vx - x * vz)
+    tz = 2.0 * inv_norm_sq * (x * vy - y * vx)
     return jnp.stack([
         vx + w * tx + (y * tz - z * ty),
         vy + w * ty + (z * tx - x * tz),
