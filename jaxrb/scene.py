@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties
+from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
 from jaxrb.types import (CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, Model, Params, State,
                          check_option)
 
@@ -135,12 +135,18 @@ class Scene:
         name = name if name is not None else f"body{index}"
         check = _Fields(f"body {index} ({name!r})")
 
-        if shape is not None and dim not in getattr(shape, "dims", ()):
-            check.fail("shape", f"{type(shape).__name__} is not a {dim}D shape")
+        if shape is not None:
+            try:
+                validate_shape(shape)
+            except ShapeError as error:
+                check.fail(error.field, error.message)
+            if dim not in shape.dims:
+                check.fail("shape", f"{type(shape).__name__} is not a {dim}D shape")
         if shape is None and (mass is None or inertia is None):
             check.fail("shape", "is None, so both 'mass' and 'inertia' must be given")
         if isinstance(shape, PointMasses) and (mass is not None or density is not None):
-            check.fail("mass", "must not be given for PointMasses: it comes from the points")
+            check.fail("mass" if mass is not None else "density",
+                       "must not be given for PointMasses: mass comes from the points")
         if mass is not None and density is not None:
             check.fail("density", "must not be given together with 'mass'")
 
@@ -164,9 +170,12 @@ class Scene:
             if dim == 2:
                 shape_inertia = check.scalar("inertia", inertia)
             else:
-                given = np.asarray(inertia, dtype=np.float64)
-                shape_inertia = np.diag(check.array("inertia", given, (3,))) if given.shape == (3,) \
-                    else check.array("inertia", given, (3, 3))
+                try:
+                    principal = np.shape(inertia) == (3,)
+                except ValueError:  # ragged nesting; check.array below reports it
+                    principal = False
+                shape_inertia = np.diag(check.array("inertia", inertia, (3,))) if principal \
+                    else check.array("inertia", inertia, (3, 3))
         try:
             check_inertia(shape_inertia, dim)
         except ShapeError as error:
@@ -231,7 +240,8 @@ class Scene:
         if contact != "none":
             raise ValueError(f"scene.build: contact {contact!r} needs collision shapes and pairs, "
                              "which this version does not build yet; use contact='none'")
-        if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
+        if not (isinstance(substeps, (int, np.integer)) and not isinstance(substeps, bool)
+                and substeps >= 1):
             raise ValueError(f"scene.build: 'substeps' must be an integer >= 1, got {substeps!r}")
         dtype = jax.dtypes.canonicalize_dtype(jnp.float64 if dtype is None else dtype)
         if not jnp.issubdtype(dtype, jnp.floating):
