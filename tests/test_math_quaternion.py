@@ -1,0 +1,118 @@
+"""Quaternion algebra and safe math: values against closed forms, gradients by check_grads."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxrb import math as rbm
+from jaxrb import quaternion as Q
+
+RNG = np.random.default_rng(0)
+
+
+def random_quats(count):
+    q = RNG.normal(size=(count, 4))
+    return jnp.asarray(q / np.linalg.norm(q, axis=1, keepdims=True))
+
+
+def test_multiply_matches_rotation_composition():
+    a, b = random_quats(5), random_quats(5)
+    composed = Q.to_rotation_matrix(Q.multiply(a, b))
+    np.testing.assert_allclose(composed, Q.to_rotation_matrix(a) @ Q.to_rotation_matrix(b), atol=1e-12)
+
+
+def test_rotation_matrix_is_orthonormal_and_matches_rotate():
+    q, v = random_quats(7), jnp.asarray(RNG.normal(size=(7, 3)))
+    rotation = Q.to_rotation_matrix(q)
+    np.testing.assert_allclose(rotation @ jnp.swapaxes(rotation, -1, -2), np.broadcast_to(np.eye(3), (7, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rotation), 1.0, atol=1e-12)
+    np.testing.assert_allclose(Q.rotate(q, v), np.einsum("nij,nj->ni", rotation, v), atol=1e-12)
+    np.testing.assert_allclose(Q.rotate_inverse(q, Q.rotate(q, v)), v, atol=1e-12)
+
+
+def test_conjugate_inverts():
+    q = random_quats(4)
+    np.testing.assert_allclose(Q.multiply(q, Q.conjugate(q)), np.tile([1.0, 0, 0, 0], (4, 1)), atol=1e-12)
+
+
+def test_axis_angle_quarter_turn_about_z():
+    q = Q.from_axis_angle(jnp.array([0.0, 0.0, 2.0]), jnp.pi / 2)
+    np.testing.assert_allclose(Q.rotate(q, jnp.array([1.0, 0.0, 0.0])), [0.0, 1.0, 0.0], atol=1e-12)
+
+
+def test_exp_map_matches_axis_angle_and_identity_at_zero():
+    rotvec = jnp.array([0.3, -0.2, 0.5])
+    angle = float(jnp.linalg.norm(rotvec))
+    np.testing.assert_allclose(Q.exp(rotvec), Q.from_axis_angle(rotvec, angle), atol=1e-12)
+    np.testing.assert_allclose(Q.exp(jnp.zeros(3)), [1.0, 0.0, 0.0, 0.0])
+    # Just above and below the Taylor switch the two branches agree.
+    for theta in (0.9e-4, 1.1e-4):
+        small = jnp.array([theta, 0.0, 0.0])
+        np.testing.assert_allclose(Q.exp(small), [np.cos(theta / 2), np.sin(theta / 2), 0, 0], atol=1e-15)
+
+
+@pytest.mark.parametrize("update", [Q.integrate_first_order, Q.integrate_exp_map])
+def test_orientation_updates_rotate_about_constant_axis(update):
+    """A constant ω about z for time T rotates by |ω|T; exp_map exactly, first order to O(h)."""
+    q = jnp.array([[1.0, 0.0, 0.0, 0.0]])
+    angvel, h, steps = jnp.array([[0.0, 0.0, 2.0]]), 1e-3, 500
+    for _ in range(steps):
+        q = update(q, angvel, h)
+    angle = 2.0 * np.arctan2(float(q[0, 3]), float(q[0, 0]))
+    tolerance = 1e-12 if update is Q.integrate_exp_map else 1e-3
+    assert abs(angle - 1.0) < tolerance
+    np.testing.assert_allclose(jnp.linalg.norm(q), 1.0, atol=1e-12)
+
+
+def test_safe_functions_finite_at_zero():
+    zero = jnp.zeros(3)
+    assert float(rbm.safe_norm(zero)) == 0.0
+    np.testing.assert_array_equal(jax.grad(rbm.safe_norm)(zero), np.zeros(3))
+    np.testing.assert_array_equal(rbm.safe_normalize(zero), np.zeros(3))
+    assert np.all(np.isfinite(jax.jacobian(rbm.safe_normalize)(zero)))
+    assert float(jax.grad(lambda d: rbm.safe_div(1.0, d))(0.0)) == 0.0
+    np.testing.assert_allclose(Q.normalize(jnp.zeros(4)), [1.0, 0.0, 0.0, 0.0])
+    assert np.all(np.isfinite(jax.jacobian(Q.normalize)(jnp.zeros(4))))
+
+
+def test_inverse3_and_matvec3():
+    matrix = jnp.asarray(RNG.normal(size=(4, 3, 3)) + 3 * np.eye(3))
+    np.testing.assert_allclose(rbm.inverse3(matrix), np.linalg.inv(matrix), atol=1e-12)
+    vector = jnp.asarray(RNG.normal(size=(4, 3)))
+    np.testing.assert_allclose(rbm.matvec3(matrix, vector), np.einsum("nij,nj->ni", matrix, vector), atol=1e-12)
+    np.testing.assert_allclose(rbm.cross(vector, vector[::-1]), np.cross(vector, vector[::-1]), atol=1e-12)
+
+
+def test_rotate2_matches_rot2():
+    angle, v = jnp.asarray(RNG.normal(size=5)), jnp.asarray(RNG.normal(size=(5, 2)))
+    np.testing.assert_allclose(rbm.rotate2(angle, v), np.einsum("nij,nj->ni", rbm.rot2(angle), v), atol=1e-12)
+
+
+# --- gradients (float64, both modes, second order) ---
+
+Q1, Q2 = random_quats(1)[0], random_quats(1)[0]
+V = jnp.asarray(RNG.normal(size=3))
+
+
+@pytest.mark.parametrize("name,fn,args", [
+    ("multiply", Q.multiply, (Q1, Q2)),
+    ("rotate", Q.rotate, (Q1, V)),
+    ("rotate_inverse", Q.rotate_inverse, (Q1, V)),
+    ("to_rotation_matrix", Q.to_rotation_matrix, (Q1,)),
+    ("normalize", Q.normalize, (Q1 * 1.7,)),
+    ("exp", Q.exp, (V,)),
+    ("exp_at_zero", Q.exp, (jnp.zeros(3),)),
+    ("from_axis_angle", Q.from_axis_angle, (V, 0.7)),
+    ("first_order", lambda q, w: Q.integrate_first_order(q, w, 0.01), (Q1, V)),
+    ("first_order_at_zero_w", lambda q, w: Q.integrate_first_order(q, w, 0.01), (Q1, jnp.zeros(3))),
+    ("exp_map", lambda q, w: Q.integrate_exp_map(q, w, 0.01), (Q1, V)),
+    ("exp_map_at_zero_w", lambda q, w: Q.integrate_exp_map(q, w, 0.01), (Q1, jnp.zeros(3))),
+    ("safe_norm", rbm.safe_norm, (V,)),
+    ("safe_normalize", rbm.safe_normalize, (V,)),
+    ("inverse3", rbm.inverse3, (jnp.eye(3) * 2.0 + 0.1,)),
+    ("rotate2", rbm.rotate2, (0.3, V[:2])),
+])
+def test_check_grads(name, fn, args):
+    check_grads(fn, args, order=2, modes=("fwd", "rev"), atol=1e-6, rtol=1e-6)
