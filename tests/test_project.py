@@ -1,0 +1,31 @@
+"""The promises the repository makes about itself: README commands and CI."""
+
+import pathlib
+import re
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def readme_commands():
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"```[a-z]*\n(.*?)```", text, re.S).group(1)
+    return [line for line in block.splitlines() if line.strip()]
+
+
+def test_readme_first_block_has_demo_and_test_commands():
+    demo, tests = readme_commands()
+    assert "jaxrb demo" in demo and "pip install" in demo
+    assert "pytest" in tests and ".[dev]" in tests
+
+
+def test_ci_runs_exactly_the_readme_test_command():
+    ci_lines = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    assert readme_commands()[1] in ci_lines
+
+
+def test_demo_runs(capsys):
+    from jaxrb.cli import main
+
+    assert main(["demo"]) == 0
+    out = capsys.readouterr().out
+    assert "flip times" in out and "range error" in out
