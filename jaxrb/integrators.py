@@ -71,12 +71,6 @@ def _damp(model, value, rate, h):
     return value * (factor[:, None] if value.ndim == 2 else factor)
 
 
-def _semi_implicit_linear(model, params, state, force, h):
-    vel = _damp(model, state.vel + h * _linear_accel(params, force),
-                params.linear_damping, h)
-    return state.pos + h * vel, vel
-
-
 def euler(model: Model, params: Params, state: State, force, torque, h) -> State:
     """Explicit Euler substep."""
     accel = _linear_accel(params, force)
@@ -98,21 +92,39 @@ def euler(model: Model, params: Params, state: State, force, torque, h) -> State
     return state.replace(pos=pos, vel=vel, quat=quat, angvel=angvel)
 
 
-def semi_implicit(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Symplectic Euler substep that integrates world angular momentum."""
-    pos, vel = _semi_implicit_linear(model, params, state, force, h)
+def semi_implicit_velocity(model: Model, params: Params, state: State, force, torque, h) -> State:
+    """Velocity phase of symplectic Euler: v += h a, L += h τ at the current orientation.
+
+    state.angvel becomes I_w⁻¹ L at the *current* orientation; the position
+    phase moves the orientation and re-expresses ω for the new one. The
+    contact solver runs between the two phases.
+    """
+    vel = _damp(model, state.vel + h * _linear_accel(params, force), params.linear_damping, h)
     if model.dim == 2:
-        angvel = _damp(model, state.angvel + h * torque / params.inertia,
-                       params.angular_damping, h)
-        return state.replace(pos=pos, vel=vel, angle=state.angle + h * angvel, angvel=angvel)
-    inv_inertia = inverse_inertia(params, 3)
+        angvel = state.angvel + h * torque / params.inertia
+    else:
+        # I_w⁻¹(L + hτ) = ω + h I_w⁻¹ τ: no round trip through L needed.
+        angvel = state.angvel + h * quat_ops.rotate(
+            state.quat, matvec3(inverse_inertia(params, 3), quat_ops.rotate_inverse(state.quat, torque)))
+    return state.replace(vel=vel, angvel=_damp(model, angvel, params.angular_damping, h))
+
+
+def semi_implicit_position(model: Model, params: Params, state: State, h) -> State:
+    """Position phase of symplectic Euler: move x and q with the new velocities, keep world L."""
+    pos = state.pos + h * state.vel
+    if model.dim == 2:
+        return state.replace(pos=pos, angle=state.angle + h * state.angvel)
     angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
     momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
-    momentum = _damp(model, momentum + h * torque, params.angular_damping, h)
-    angvel_mid, angvel_body = angvel_from_momentum(state.quat, momentum, params, inv_inertia, angvel_body)
-    quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, angvel_mid, h)
-    angvel, _ = angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body)
-    return state.replace(pos=pos, vel=vel, quat=quat, angvel=angvel)
+    quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, state.angvel, h)
+    angvel, _ = angvel_from_momentum(quat, momentum, params, inverse_inertia(params, 3), angvel_body)
+    return state.replace(pos=pos, quat=quat, angvel=angvel)
+
+
+def semi_implicit(model: Model, params: Params, state: State, force, torque, h) -> State:
+    """Symplectic Euler substep that integrates world angular momentum."""
+    state = semi_implicit_velocity(model, params, state, force, torque, h)
+    return semi_implicit_position(model, params, state, h)
 
 
 def _skew_times(vector, matrix):
@@ -151,19 +163,33 @@ def solve_gyroscopic(inertia, angvel_body, h, iterations=GYRO_NEWTON_ITERATIONS)
     return angvel
 
 
-def implicit_gyro(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Semi-implicit substep with the gyroscopic term implicit in the body frame."""
+def implicit_gyro_velocity(model: Model, params: Params, state: State, force, torque, h) -> State:
+    """Velocity phase with the gyroscopic term implicit: ω_b solves I(ω_b − ω_b0) + h ω_b × Iω_b = hτ_b."""
     if model.dim == 2:
-        return semi_implicit(model, params, state, force, torque, h)
-    pos, vel = _semi_implicit_linear(model, params, state, force, h)
-    inv_inertia = inverse_inertia(params, 3)
+        return semi_implicit_velocity(model, params, state, force, torque, h)
+    vel = _damp(model, state.vel + h * _linear_accel(params, force), params.linear_damping, h)
     angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
-    angvel_body = angvel_body + h * matvec3(inv_inertia, quat_ops.rotate_inverse(state.quat, torque))
+    angvel_body = angvel_body + h * matvec3(inverse_inertia(params, 3),
+                                            quat_ops.rotate_inverse(state.quat, torque))
     angvel_body = _damp(model, angvel_body, params.angular_damping, h)
     angvel_body = solve_gyroscopic(params.inertia, angvel_body, h)
-    quat = quat_ops.ORIENTATION_UPDATES[model.orientation](
-        state.quat, quat_ops.rotate(state.quat, angvel_body), h)
-    return state.replace(pos=pos, vel=vel, quat=quat, angvel=quat_ops.rotate(quat, angvel_body))
+    return state.replace(vel=vel, angvel=quat_ops.rotate(state.quat, angvel_body))
+
+
+def implicit_gyro_position(model: Model, params: Params, state: State, h) -> State:
+    """Position phase that carries the body-frame ω (the implicit solve's unknown) along."""
+    pos = state.pos + h * state.vel
+    if model.dim == 2:
+        return state.replace(pos=pos, angle=state.angle + h * state.angvel)
+    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
+    quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, state.angvel, h)
+    return state.replace(pos=pos, quat=quat, angvel=quat_ops.rotate(quat, angvel_body))
+
+
+def implicit_gyro(model: Model, params: Params, state: State, force, torque, h) -> State:
+    """Semi-implicit substep with the gyroscopic term implicit in the body frame."""
+    state = implicit_gyro_velocity(model, params, state, force, torque, h)
+    return implicit_gyro_position(model, params, state, h)
 
 
 def rk4(model: Model, params: Params, state: State, force, torque, h) -> State:
@@ -218,3 +244,8 @@ def _rk4_combine(derivative, y, h):
 
 INTEGRATORS = {"euler": euler, "semi_implicit": semi_implicit,
                "implicit_gyro": implicit_gyro, "rk4": rk4}
+
+# Integrators that split into a velocity and a position phase, so contact can
+# act on the velocities in between.
+PHASES = {"semi_implicit": (semi_implicit_velocity, semi_implicit_position),
+          "implicit_gyro": (implicit_gyro_velocity, implicit_gyro_position)}
