@@ -25,10 +25,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
-from jaxrb.types import (CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, Model, Params, State,
-                         check_option)
+from jaxrb.collision.pairs import build_pair_groups
+from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, SOLVERS, Model,
+                         Params, State, check_option)
 
 DEFAULT_DENSITY = 1000.0
+ALL_BITS = 0xFFFFFFFF
+# Above this many body–body pairs the default broadphase is "spheres".
+ALL_PAIRS_LIMIT = 64
 
 
 @dataclasses.dataclass
@@ -47,6 +51,23 @@ class _Body:
     restitution: float
     linear_damping: float
     angular_damping: float
+    collision_filter: tuple = (1, ALL_BITS)
+
+
+@dataclasses.dataclass
+class _Plane:
+    normal: np.ndarray
+    offset: float
+    friction: float
+    restitution: float
+    collision_filter: tuple
+
+
+def _check_filter(check, category, mask):
+    for field, value in (("collision_category", category), ("collision_mask", mask)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or not 0 <= value <= ALL_BITS:
+            check.fail(field, f"must be an integer bit mask in [0, 2**32), got {value!r}")
+    return int(category), int(mask)
 
 
 class _Fields:
@@ -104,6 +125,7 @@ class Scene:
             gravity = (0.0, -9.81) if dim == 2 else (0.0, 0.0, -9.81)
         self.gravity = _Fields("scene").array("gravity", gravity, (dim,))
         self._bodies: list[_Body] = []
+        self._planes: list[_Plane] = []
 
     @property
     def num_bodies(self) -> int:
@@ -111,7 +133,8 @@ class Scene:
 
     def add_body(self, shape=None, *, mass=None, density=None, inertia=None, pos=None,
                  quat=None, angle=None, vel=None, angvel=None, friction=0.5, restitution=0.0,
-                 linear_damping=0.0, angular_damping=0.0, name: Optional[str] = None) -> int:
+                 linear_damping=0.0, angular_damping=0.0, collision_category=1,
+                 collision_mask=ALL_BITS, name: Optional[str] = None) -> int:
         """Add a dynamic body and return its index.
 
         Args:
@@ -129,6 +152,8 @@ class Scene:
             friction: Coulomb coefficient >= 0.
             restitution: in [0, 1].
             linear_damping, angular_damping: rates >= 0 in 1/s.
+            collision_category, collision_mask: bit masks; two shapes can touch
+                when each one's category meets the other's mask (Box2D's rule).
             name: used in messages; default ``"body<i>"``.
         """
         dim, index = self.dim, len(self._bodies)
@@ -208,11 +233,46 @@ class Scene:
             friction=check.scalar("friction", friction, low=0.0),
             restitution=check.scalar("restitution", restitution, low=0.0, high=1.0),
             linear_damping=check.scalar("linear_damping", linear_damping, low=0.0),
-            angular_damping=check.scalar("angular_damping", angular_damping, low=0.0)))
+            angular_damping=check.scalar("angular_damping", angular_damping, low=0.0),
+            collision_filter=_check_filter(check, collision_category, collision_mask)))
         return index
 
+    def add_plane(self, normal=None, offset=0.0, *, friction=0.5, restitution=0.0,
+                  collision_category=1, collision_mask=ALL_BITS) -> int:
+        """Add a static plane (a half-plane in 2D) and return its index.
+
+        The solid is ``normal·x < offset``; bodies rest on its ``+normal`` side.
+
+        Args:
+            normal: (dim,) non-zero normal, normalised here; default +z (3D), +y (2D).
+            offset: the plane is ``normal·x = offset`` (after normalising).
+            friction: Coulomb coefficient >= 0 (mixed with a body's as √(μ_A μ_B)).
+            restitution: in [0, 1] (mixed as max(e_A, e_B)).
+            collision_category, collision_mask: as in :meth:`add_body`.
+        """
+        check = _Fields(f"plane {len(self._planes)}")
+        default = np.eye(self.dim)[-1]
+        normal = check.array("normal", default if normal is None else normal, (self.dim,))
+        length = float(np.linalg.norm(normal))
+        if length < 1e-12:
+            check.fail("normal", "must be non-zero")
+        self._planes.append(_Plane(
+            normal=normal / length, offset=check.scalar("offset", offset) / length,
+            friction=check.scalar("friction", friction, low=0.0),
+            restitution=check.scalar("restitution", restitution, low=0.0, high=1.0),
+            collision_filter=_check_filter(check, collision_category, collision_mask)))
+        return len(self._planes) - 1
+
     def build(self, dt: float, integrator: str = "semi_implicit", orientation: Optional[str] = None,
-              contact: Optional[str] = None, substeps: int = 1, dtype=None):
+              contact: Optional[str] = None, substeps: int = 1, dtype=None, *,
+              solver: str = "sequential", iterations: int = 4, relax_iterations: int = 1,
+              broadphase: Optional[str] = None, broadphase_capacity: Optional[int] = None,
+              contact_margin: float = 0.01, bounce_threshold: float = 0.5,
+              contact_hertz: float = 30.0, contact_damping_ratio: float = 10.0,
+              max_push_velocity: float = 3.0, penalty_stiffness: Optional[float] = None,
+              penalty_damping: Optional[float] = None, penalty_frequency: Optional[float] = None,
+              penalty_damping_ratio: Optional[float] = None, penalty_width: Optional[float] = None,
+              friction_velocity: float = 0.01):
         """Validate the options and return ``(model, params, state)``.
 
         Args:
@@ -220,11 +280,30 @@ class Scene:
             integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``.
             orientation: ``"first_order"`` or ``"exp_map"`` (default). RK4 integrates
                 the quaternion ODE itself, so it takes no orientation option.
-            contact: ``"none"``, ``"penalty"`` or ``"impulse"``; default ``"none"``
-                for scenes where nothing can touch.
+            contact: ``"none"``, ``"penalty"`` or ``"impulse"``; default
+                ``"impulse"`` when any pair can touch, else ``"none"``. Contact
+                needs ``semi_implicit`` or ``implicit_gyro`` (velocity first).
             substeps: integration substeps per ``step`` call, >= 1.
             dtype: floating dtype of Params and State; default JAX's default float
                 (float64 when x64 is enabled, else float32).
+            solver: impulse iteration scheme: ``"sequential"`` (Gauss–Seidel over
+                contacts) or ``"jacobi"`` (parallel, with mass splitting).
+            iterations, relax_iterations: impulse iterations per substep with and
+                without position correction.
+            broadphase: ``"all_pairs"`` or ``"spheres"`` (bounding-sphere test,
+                then at most ``broadphase_capacity`` pairs per pair kind); default
+                all pairs up to 64 body–body pairs.
+            contact_margin, bounce_threshold, contact_hertz,
+                contact_damping_ratio, max_push_velocity, friction_velocity:
+                initial values of the Params fields of the same names.
+            penalty_stiffness, penalty_damping: N/m and N·s/m per contact point.
+                Or give ``penalty_frequency`` (Hz) and ``penalty_damping_ratio``
+                instead: k = m ω², c = 2ζ m ω with m the mean body mass. Without
+                any, the frequency is 0.03/h (h = dt/substeps; stable for
+                symplectic Euler with up to ~8 contacts on a body) and damping comes from each contact's
+                restitution, ζ = −ln e / √(π² + ln² e).
+            penalty_width: softplus width (m); giving it turns on the smooth
+                activation.
         """
         check = _Fields("scene.build")
         if not self._bodies:
@@ -236,10 +315,29 @@ class Scene:
                              "which integrates the quaternion ODE itself; leave it unset")
         orientation = check_option("orientation", "exp_map" if orientation is None else orientation,
                                    ORIENTATIONS)
-        contact = check_option("contact", "none" if contact is None else contact, CONTACT_MODELS)
-        if contact != "none":
-            raise ValueError(f"scene.build: contact {contact!r} needs collision shapes and pairs, "
-                             "which this version does not build yet; use contact='none'")
+        check_option("solver", solver, SOLVERS)
+        for field, value, low in (("iterations", iterations, 1), ("relax_iterations", relax_iterations, 0)):
+            if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low):
+                raise ValueError(f"scene.build: {field!r} must be an integer >= {low}, got {value!r}")
+        pair_count = sum(1 for a in range(len(self._bodies)) for b in range(a))
+        if broadphase is None:
+            broadphase = "all_pairs" if pair_count <= ALL_PAIRS_LIMIT else "spheres"
+        check_option("broadphase", broadphase, BROADPHASES)
+        if broadphase_capacity is not None and not (
+                isinstance(broadphase_capacity, (int, np.integer)) and broadphase_capacity >= 1):
+            raise ValueError(f"scene.build: 'broadphase_capacity' must be an integer >= 1, "
+                             f"got {broadphase_capacity!r}")
+        pair_groups, skipped = build_pair_groups(
+            [b.shape for b in self._bodies], [b.collision_filter for b in self._bodies],
+            tuple((tuple(p.normal.tolist()), p.offset) for p in self._planes),
+            [p.collision_filter for p in self._planes], self.dim, broadphase, broadphase_capacity)
+        contact = check_option("contact", ("impulse" if pair_groups else "none") if contact is None
+                               else contact, CONTACT_MODELS)
+        if contact == "none":
+            pair_groups = ()
+        elif integrator not in ("semi_implicit", "implicit_gyro"):
+            raise ValueError(f"scene.build: contact {contact!r} needs a velocity-first integrator "
+                             f"('semi_implicit' or 'implicit_gyro'), got {integrator!r}")
         if not (isinstance(substeps, (int, np.integer)) and not isinstance(substeps, bool)
                 and substeps >= 1):
             raise ValueError(f"scene.build: 'substeps' must be an integer >= 1, got {substeps!r}")
@@ -252,7 +350,34 @@ class Scene:
             dim=dim, num_bodies=len(bodies), integrator=integrator, orientation=orientation,
             contact=contact, substeps=int(substeps),
             damping=any(b.linear_damping > 0.0 or b.angular_damping > 0.0 for b in bodies),
-            shapes=tuple(b.shape for b in bodies), names=tuple(b.name for b in bodies))
+            shapes=tuple(b.shape for b in bodies), names=tuple(b.name for b in bodies),
+            planes=tuple((tuple(p.normal.tolist()), p.offset) for p in self._planes),
+            pair_groups=pair_groups, solver=solver, iterations=int(iterations),
+            relax_iterations=int(relax_iterations), penalty_smooth=penalty_width is not None,
+            penalty_damping_from_restitution=penalty_damping is None and penalty_damping_ratio is None,
+            skipped_pairs=skipped)
+        substep = dt / int(substeps)
+        mean_mass = float(np.mean([b.mass for b in bodies]))
+        if penalty_frequency is None:
+            penalty_frequency = 0.03 / substep
+        omega = 2.0 * np.pi * check.scalar("penalty_frequency", penalty_frequency, low=0.0, low_open=True)
+        if penalty_stiffness is None:
+            penalty_stiffness = mean_mass * omega ** 2
+        if penalty_damping is None:
+            ratio = 0.0 if penalty_damping_ratio is None else check.scalar(
+                "penalty_damping_ratio", penalty_damping_ratio, low=0.0)
+            penalty_damping = 2.0 * ratio * mean_mass * omega
+        scalars = dict(
+            contact_margin=check.scalar("contact_margin", contact_margin, low=0.0),
+            bounce_threshold=check.scalar("bounce_threshold", bounce_threshold, low=0.0),
+            contact_hertz=check.scalar("contact_hertz", contact_hertz, low=0.0, low_open=True),
+            contact_damping_ratio=check.scalar("contact_damping_ratio", contact_damping_ratio, low=0.0),
+            max_push_velocity=check.scalar("max_push_velocity", max_push_velocity, low=0.0),
+            penalty_stiffness=check.scalar("penalty_stiffness", penalty_stiffness, low=0.0, low_open=True),
+            penalty_damping=check.scalar("penalty_damping", penalty_damping, low=0.0),
+            penalty_width=check.scalar("penalty_width", 1e-3 if penalty_width is None else penalty_width,
+                                       low=0.0, low_open=True),
+            friction_velocity=check.scalar("friction_velocity", friction_velocity, low=0.0, low_open=True))
 
         def stack(values):
             return jnp.asarray(np.stack([np.asarray(v, dtype=np.float64) for v in values]), dtype=dtype)
@@ -269,12 +394,19 @@ class Scene:
             linear_damping=stack([b.linear_damping for b in bodies]),
             angular_damping=stack([b.angular_damping for b in bodies]),
             force=jnp.zeros((num, dim), dtype=dtype),
-            torque=jnp.zeros((num, 3) if dim == 3 else (num,), dtype=dtype))
+            torque=jnp.zeros((num, 3) if dim == 3 else (num,), dtype=dtype),
+            plane_friction=jnp.asarray([p.friction for p in self._planes], dtype=dtype),
+            plane_restitution=jnp.asarray([p.restitution for p in self._planes], dtype=dtype),
+            **{name: jnp.asarray(value, dtype=dtype) for name, value in scalars.items()})
+        slots = model.num_contacts
         state = State(
             pos=stack([b.pos for b in bodies]),
             vel=stack([b.vel for b in bodies]),
             angvel=stack([b.angvel for b in bodies]),
             quat=stack([b.quat for b in bodies]) if dim == 3 else None,
             angle=stack([b.angle for b in bodies]) if dim == 2 else None,
-            time=jnp.zeros((), dtype=dtype))
+            time=jnp.zeros((), dtype=dtype),
+            contact_impulse=jnp.zeros((slots, 1 + dim), dtype=dtype) if slots else None,
+            contact_key=jnp.full((slots,), -1, dtype=jnp.int32) if slots else None,
+            overflow=jnp.zeros((), dtype=bool) if slots else None)
         return model, params, state

@@ -8,8 +8,12 @@ from typing import Callable, Optional, Union
 import jax
 import jax.numpy as jnp
 
+from jaxrb.collision.pairs import detect
+from jaxrb.contact import impulse
+from jaxrb.contact.common import pad
+from jaxrb.contact.penalty import penalty_wrench
 from jaxrb.dynamics import net_wrench
-from jaxrb.integrators import INTEGRATORS
+from jaxrb.integrators import INTEGRATORS, PHASES
 from jaxrb.types import Model, Params, State, Wrench
 
 
@@ -22,19 +26,90 @@ def make_step(model: Model) -> Callable:
     held constant over the step (see :func:`jaxrb.dynamics.wrench_at_points`
     for forces at points). Only the stages ``model`` needs are traced.
     """
-    advance = INTEGRATORS[model.integrator]
     substeps = model.substeps
+    if model.contact == "none":
+        run_substeps = _free_substeps(model)
+    elif model.contact == "penalty":
+        run_substeps = _penalty_substeps(model)
+    else:
+        run_substeps = _impulse_substeps(model)
 
     def step(state: State, params: Params, applied: Optional[Wrench] = None) -> State:
-        h = params.dt / substeps
         force, torque = net_wrench(model, params, applied)
-        # Substeps are few and fixed: unrolled in Python so XLA fuses across them.
-        for _ in range(substeps):
-            state = advance(model, params, state, force, torque, h)
+        state = run_substeps(state, params, force, torque, params.dt / substeps)
         return state.replace(time=state.time + params.dt)
 
     step.model = model
     return step
+
+
+# Substeps are few and fixed: each runner unrolls them in Python so XLA fuses across them.
+
+def _free_substeps(model: Model):
+    advance = INTEGRATORS[model.integrator]
+
+    def run(state, params, force, torque, h):
+        for _ in range(model.substeps):
+            state = advance(model, params, state, force, torque, h)
+        return state
+
+    return run
+
+
+def _penalty_substeps(model: Model):
+    velocity_phase, position_phase = PHASES[model.integrator]
+
+    def run(state, params, force, torque, h):
+        overflow = state.overflow
+        for _ in range(model.substeps):
+            contacts = detect(model, params, state)
+            overflow = overflow | contacts.overflow
+            contact_force, contact_torque = penalty_wrench(model, params, state, contacts, h)
+            state = velocity_phase(model, params, state, force + contact_force, torque + contact_torque, h)
+            state = position_phase(model, params, state, h)
+        return state.replace(overflow=overflow)
+
+    return run
+
+
+def _impulse_substeps(model: Model):
+    velocity_phase, position_phase = PHASES[model.integrator]
+
+    def run(state, params, force, torque, h):
+        contacts = detect(model, params, state)
+        prep = impulse.prepare(model, params, state, contacts)
+        lam = impulse.warm_start_impulses(model, state, contacts, prep)
+        soft = impulse.soft_parameters(params, h)
+
+        def apply(state, impulses):
+            vel, angvel = impulse.apply_impulses(model, prep, pad(state.vel), pad(state.angvel), impulses)
+            return state.replace(vel=vel[:-1], angvel=angvel[:-1])
+
+        def solve(state, lam, soft, passes):
+            vel, angvel = pad(state.vel), pad(state.angvel)
+            separation = impulse.current_separation(model, prep, state)
+            for _ in range(passes):
+                vel, angvel, lam = impulse.solve_pass(model, prep, vel, angvel, lam, separation, h, soft)
+            return state.replace(vel=vel[:-1], angvel=angvel[:-1]), lam
+
+        for _ in range(model.substeps):
+            state = velocity_phase(model, params, state, force, torque, h)
+            # Restitution uses the approach speed including this substep's loads
+            # (gravity): the speed the contact is actually hit with.
+            prep = prep.replace(approach=impulse.normal_velocity(model, prep, state))
+            # Warm start: the substep begins with the last substep's (or step's) impulses.
+            state = apply(state, lam[:, :1] * prep.normal + lam[:, 1:])
+            state, lam = solve(state, lam, soft, model.iterations)
+            state = position_phase(model, params, state, h)
+            state, lam = solve(state, lam, None, model.relax_iterations)
+            # Bouncing in the substep of impact (not at the step's end) keeps a
+            # bounce from waiting on the plane for the remaining substeps.
+            vel, angvel, lam = impulse.restitution_pass(model, prep, pad(state.vel), pad(state.angvel),
+                                                        lam, params.bounce_threshold)
+            state = state.replace(vel=vel[:-1], angvel=angvel[:-1])
+        return state.replace(contact_impulse=lam, contact_key=contacts.key, overflow=contacts.overflow)
+
+    return run
 
 
 def _segment_length(num_saved: int, checkpoint: Union[bool, int]) -> int:

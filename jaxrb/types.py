@@ -19,6 +19,11 @@ Array = jax.Array
 INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4")
 ORIENTATIONS = ("first_order", "exp_map")
 CONTACT_MODELS = ("none", "penalty", "impulse")
+SOLVERS = ("sequential", "jacobi")
+BROADPHASES = ("all_pairs", "spheres")
+
+# Contact status codes (ContactSet.status), from v_rel = n·(v_A − v_B) at the point.
+INACTIVE, SEPARATING, RESTING, COLLIDING = 0, 1, 2, 3
 
 
 def check_option(name: str, value: Any, valid: tuple) -> str:
@@ -45,6 +50,18 @@ class Model:
         shapes: per-body shape (hashable, or ``None`` for a body given only mass
             and inertia); used by collision and rendering.
         names: per-body names used in messages and summaries.
+        planes: static planes as ``(normal tuple, offset)``; the solid side is
+            normal·x < offset.
+        pair_groups: the static pair table, one
+            :class:`~jaxrb.collision.pairs.PairGroup` per pair kind (and
+            geometry size), each run through one vmapped kernel.
+        solver: impulse iteration scheme, one of :data:`SOLVERS`.
+        iterations: impulse solver iterations per substep (unrolled).
+        relax_iterations: iterations without position bias after each substep.
+        penalty_smooth: penalty normal force uses the softplus activation.
+        penalty_damping_from_restitution: penalty damping is derived per
+            contact from restitution instead of ``Params.penalty_damping``.
+        skipped_pairs: pair kinds present in the scene that no kernel handles.
     """
 
     dim: int
@@ -56,6 +73,19 @@ class Model:
     damping: bool = False
     shapes: tuple = ()
     names: tuple = ()
+    planes: tuple = ()
+    pair_groups: tuple = ()
+    solver: str = "sequential"
+    iterations: int = 4
+    relax_iterations: int = 1
+    penalty_smooth: bool = False
+    penalty_damping_from_restitution: bool = True
+    skipped_pairs: tuple = ()
+
+    @property
+    def num_contacts(self) -> int:
+        """Fixed contact capacity C of the step (0 when nothing can touch)."""
+        return sum(group.capacity * group.slots for group in self.pair_groups)
 
     def summary(self) -> str:
         """A short human-readable account of what the compiled step contains."""
@@ -71,7 +101,14 @@ class Model:
         stages.append(f"integrator {self.integrator}"
                       + (f" + orientation {self.orientation}" if orientation else ""))
         if self.contact != "none":
-            stages.append(f"contact {self.contact}")
+            kinds = ", ".join(f"{g.kind} x{g.capacity}" for g in self.pair_groups)
+            detail = (f"{self.solver}, {self.iterations} iterations + {self.relax_iterations} relax"
+                      if self.contact == "impulse" else
+                      "smooth activation" if self.penalty_smooth else "hard activation")
+            stages.insert(0, f"collision ({kinds}; {self.num_contacts} contact slots)")
+            stages.append(f"contact {self.contact} ({detail})")
+        if self.skipped_pairs:
+            stages.append("no kernel for: " + ", ".join(self.skipped_pairs))
         return (f"jaxrb Model: {self.dim}D, {self.num_bodies} bodies ({body_text or 'none'}), "
                 f"substeps={self.substeps}; step = " + " -> ".join(stages))
 
@@ -93,6 +130,22 @@ class Params:
         angular_damping: (n,) rate c in dL/dt = -c L, 1/s.
         force: (n, dim) constant world-frame force at each centre of mass.
         torque: (n, 3) constant world-frame torque in 3D, (n,) in 2D.
+        plane_friction: (m,) friction of each static plane.
+        plane_restitution: (m,) restitution of each static plane.
+        contact_margin: () distance (m) below which a contact is kept as
+            speculative; fast approaches extend it by dt·|v_n|.
+        bounce_threshold: () approach speed (m/s) below which contacts rest
+            instead of bouncing; also the band of ``RESTING`` status.
+        contact_hertz: () stiffness of the impulse model's soft position
+            correction (Hz).
+        contact_damping_ratio: () damping ratio of that soft correction.
+        max_push_velocity: () cap on the speed (m/s) used to push overlaps apart.
+        penalty_stiffness: () penalty spring constant per contact point (N/m).
+        penalty_damping: () penalty damper per contact point (N·s/m), used when
+            the Model does not derive it from restitution.
+        penalty_width: () softplus width (m) of the smooth penalty activation.
+        friction_velocity: () regularisation velocity (m/s) of penalty friction:
+            μF_n·v_t/√(|v_t|² + v_reg²).
     """
 
     mass: Array
@@ -106,6 +159,17 @@ class Params:
     angular_damping: Array
     force: Array
     torque: Array
+    plane_friction: Array
+    plane_restitution: Array
+    contact_margin: Array
+    bounce_threshold: Array
+    contact_hertz: Array
+    contact_damping_ratio: Array
+    max_push_velocity: Array
+    penalty_stiffness: Array
+    penalty_damping: Array
+    penalty_width: Array
+    friction_velocity: Array
 
 
 @pytree_dataclass
@@ -119,6 +183,12 @@ class State:
         quat: (n, 4) unit quaternions (w, x, y, z) body-to-world in 3D; ``None`` in 2D.
         angle: (n,) body-to-world rotation angle in 2D; ``None`` in 3D.
         time: () simulated time.
+        contact_impulse: (C, 1 + dim) impulse solver warm start per contact
+            slot: the normal impulse, then the world friction impulse vector.
+        contact_key: (C,) int32 which pair and slot each row belongs to, so a
+            warm start is used only by the same contact.
+        overflow: () bool, True if a broadphase had more overlapping pairs than
+            its capacity in the last step (contacts were dropped).
     """
 
     pos: Array
@@ -127,6 +197,9 @@ class State:
     quat: Optional[Array]
     angle: Optional[Array]
     time: Array
+    contact_impulse: Optional[Array] = None
+    contact_key: Optional[Array] = None
+    overflow: Optional[Array] = None
 
 
 @pytree_dataclass

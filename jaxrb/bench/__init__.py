@@ -1,0 +1,20 @@
+"""Benchmarks: speed against error, and throughput (``python -m jaxrb.bench``).
+
+* :mod:`jaxrb.bench.timing`: compile time apart from median run time of
+  jitted functions (block_until_ready), shared by every benchmark.
+* :mod:`jaxrb.bench.report`: Markdown tables, number formats, machine header.
+* :mod:`jaxrb.bench.free_body`: torque-free tumbling accuracy per integrator,
+  and free-body throughput in body-steps per second.
+
+Importing this package has no side effects; the command line enables JAX's
+float64 mode for its own process.
+"""
+
+from jaxrb.bench.report import Report, fmt_fixed, fmt_sci, fmt_si, fmt_step, machine_info, \
+    markdown_table
+from jaxrb.bench.timing import Stopwatch, Timing, compile_jitted, time_compiled, time_jitted
+
+__all__ = [
+    "Report", "Stopwatch", "Timing", "compile_jitted", "fmt_fixed", "fmt_sci", "fmt_si",
+    "fmt_step", "machine_info", "markdown_table", "time_compiled", "time_jitted",
+]

@@ -1,0 +1,126 @@
+"""Timing of jitted functions: compile time apart from the median run time.
+
+Every benchmark in :mod:`jaxrb.bench` times the same way, so numbers from
+different reports can be compared:
+
+* **compile**: tracing + lowering + XLA compilation of the function for the
+  given arguments (``jax.jit(fn).lower(*args).compile()``), wall seconds. This
+  is what a notebook user waits for on the first call.
+* **run**: wall seconds of one call of the compiled executable, waited on with
+  ``jax.block_until_ready``. One untimed warm-up call comes first; the reported
+  figure is the median of the timed calls.
+
+Example::
+
+    timing = time_jitted(lambda s, p: rollout(step, s, p, 1000), state, params)
+    print(timing.compile_s, timing.run_s)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import time
+from typing import Any, Callable, Sequence
+
+import jax
+
+
+@dataclasses.dataclass(frozen=True)
+class Timing:
+    """Compile and run times of one jitted function on one set of arguments.
+
+    Attributes:
+        compile_s: trace + lower + compile, seconds.
+        run_s: median wall seconds of one call (after a warm-up call).
+        runs_s: every timed call, seconds, in order.
+        output: the output of the last call (already blocked on), so a
+            benchmark can time and check results with one execution.
+    """
+
+    compile_s: float
+    run_s: float
+    runs_s: tuple
+    output: Any = dataclasses.field(default=None, repr=False, compare=False)
+
+    @property
+    def min_s(self) -> float:
+        return min(self.runs_s)
+
+    @property
+    def spread(self) -> float:
+        """(max − min) / median of the timed runs: a rough noise indicator."""
+        return (max(self.runs_s) - min(self.runs_s)) / self.run_s if self.run_s > 0 else 0.0
+
+
+def compile_jitted(fn: Callable, *args, static_argnums: Sequence[int] = ()):
+    """Jit, lower and compile ``fn`` for ``args``; return ``(compiled, seconds)``.
+
+    ``compiled`` is called with the non-static arguments only.
+    """
+    start = time.perf_counter()
+    compiled = jax.jit(fn, static_argnums=tuple(static_argnums)).lower(*args).compile()
+    return compiled, time.perf_counter() - start
+
+
+def time_compiled(compiled: Callable, *args, repeats: int = 5, min_repeats: int = 3,
+                  budget_s: float | None = None, warmup: int = 1):
+    """Median wall time of ``compiled(*args)`` with ``block_until_ready``.
+
+    Args:
+        compiled: a compiled (or jitted) function.
+        args: its arguments.
+        repeats: number of timed calls at most.
+        min_repeats: timed calls made even when ``budget_s`` is exceeded.
+        budget_s: optional wall-time budget for the timed calls; once it is
+            used up (and ``min_repeats`` calls are done) timing stops early.
+        warmup: untimed calls first.
+
+    Returns:
+        ``(median_s, runs_s, last_output)``.
+    """
+    output = None
+    for _ in range(warmup):
+        output = jax.block_until_ready(compiled(*args))
+    runs = []
+    spent = 0.0
+    for index in range(max(1, repeats)):
+        start = time.perf_counter()
+        output = jax.block_until_ready(compiled(*args))
+        elapsed = time.perf_counter() - start
+        runs.append(elapsed)
+        spent += elapsed
+        if budget_s is not None and spent > budget_s and index + 1 >= min_repeats:
+            break
+    return statistics.median(runs), tuple(runs), output
+
+
+def time_jitted(fn: Callable, *args, repeats: int = 5, min_repeats: int = 3,
+                budget_s: float | None = None, warmup: int = 1) -> Timing:
+    """Compile ``fn`` for ``args`` and time it; see the module docstring.
+
+    Args:
+        fn: a pure function of JAX arrays/pytrees (it is jitted here).
+        args: its arguments (pytrees of arrays).
+        repeats, min_repeats, budget_s, warmup: see :func:`time_compiled`.
+
+    Returns:
+        A :class:`Timing`; ``output`` holds the result of the last call.
+    """
+    compiled, compile_s = compile_jitted(fn, *args)
+    run_s, runs, output = time_compiled(compiled, *args, repeats=repeats, min_repeats=min_repeats,
+                                        budget_s=budget_s, warmup=warmup)
+    return Timing(compile_s=compile_s, run_s=run_s, runs_s=runs, output=output)
+
+
+class Stopwatch:
+    """Context manager measuring wall seconds: ``with Stopwatch() as sw: ...; sw.seconds``."""
+
+    def __enter__(self):
+        self.start = time.perf_counter()
+        self.seconds = 0.0
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.perf_counter() - self.start
+        return False

@@ -1,0 +1,1 @@
+"""Collision detection: shape geometry, the static pair table and one kernel per pair kind."""

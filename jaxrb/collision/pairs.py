@@ -1,0 +1,288 @@
+"""The static pair table and the detection pipeline.
+
+At build time every pair of shapes that may touch (after collision filtering,
+no self pairs, nothing static against static) is sorted into a
+:class:`PairGroup` per pair kind and geometry size. At run time
+:func:`detect` runs each group's kernel vmapped over its pairs and flattens
+the results into one :class:`ContactSet` of fixed capacity.
+
+A group either runs all its pairs (``all_pairs``) or, with the ``spheres``
+broadphase, first tests bounding spheres of all its pairs and runs the kernel
+on at most ``capacity`` overlapping ones; more overlaps than that set
+``ContactSet.overflow`` (and ``State.overflow``): contacts are never dropped
+silently.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxrb import quaternion as quat_ops
+from jaxrb._struct import pytree_dataclass
+from jaxrb.collision import box, planar, plane, round as round_kernels
+from jaxrb.collision.geometry import geometry, pair_kind
+from jaxrb.math import cross, cross2, rot2, safe_norm
+from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Array, Model, Params, State
+
+KERNELS = {
+    "sphere_plane": plane.sphere_plane,
+    "capsule_plane": plane.capsule_plane,
+    "box_plane": plane.box_plane,
+    "points_plane": plane.points_plane,
+    "polygon_plane": plane.polygon_plane,
+    "sphere_sphere": round_kernels.sphere_sphere,
+    "capsule_sphere": round_kernels.capsule_sphere,
+    "capsule_capsule": round_kernels.capsule_capsule,
+    "box_box": box.box_box,
+    "box_sphere": box.box_sphere,
+    "box_capsule": box.box_capsule,
+    "points_box": box.points_box,
+    "polygon_sphere": planar.polygon_sphere,
+    "polygon_polygon": planar.polygon_polygon,
+    "points_polygon": planar.points_polygon,
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class PairGroup:
+    """All pairs of one kind (and geometry size), run through one vmapped kernel.
+
+    Attributes:
+        kind: pair kind, e.g. ``"box_plane"``; A is the first kind.
+        body_a: (P,) body index of each pair's A.
+        body_b: (P,) body index of B, or plane index when ``b_is_plane``.
+        b_is_plane: whether B is a static plane.
+        capacity: pairs run through the kernel per step (P for all pairs).
+        slots: contacts per pair the kernel returns (K).
+        key_offset: first contact key of this group (keys are global slot ids).
+    """
+
+    kind: str
+    body_a: tuple
+    body_b: tuple
+    b_is_plane: bool
+    capacity: int
+    slots: int
+    key_offset: int
+
+
+@pytree_dataclass
+class ContactSet:
+    """Every contact slot of one world, flat over all pair groups (C slots).
+
+    Attributes:
+        body_a: (C,) int32 body of side A.
+        body_b: (C,) int32 body of side B; ``n`` (one past the last body) for planes.
+        dist: (C,) signed separation (m), negative when penetrating.
+        normal: (C, dim) unit normal from B to A.
+        point: (C, dim) world contact point.
+        active: (C,) bool, a real contact within the (speculative) margin.
+        friction: (C,) mixed friction √(μ_A μ_B).
+        restitution: (C,) mixed restitution max(e_A, e_B).
+        normal_velocity: (C,) v_rel = n·(v_A − v_B) at the point, before the step.
+        status: (C,) int8 INACTIVE, SEPARATING, RESTING or COLLIDING
+            (|v_rel| ≤ bounce_threshold counts as resting).
+        key: (C,) int32 global id of the pair slot held by each row.
+        overflow: () bool, a broadphase dropped overlapping pairs.
+    """
+
+    body_a: Array
+    body_b: Array
+    dist: Array
+    normal: Array
+    point: Array
+    active: Array
+    friction: Array
+    restitution: Array
+    normal_velocity: Array
+    status: Array
+    key: Array
+    overflow: Array
+
+
+def bounding_radius(kind, arrays):
+    """Radius about the shape origin that encloses the shape."""
+    if kind == "sphere":
+        return float(arrays[0])
+    if kind == "capsule":
+        return float(arrays[0] + arrays[1])
+    if kind == "box":
+        return float(np.linalg.norm(arrays[0]))
+    return float(np.max(np.linalg.norm(arrays[0], axis=-1)))
+
+
+def _can_collide(filter_a, filter_b):
+    (category_a, mask_a), (category_b, mask_b) = filter_a, filter_b
+    return bool(category_a & mask_b) and bool(category_b & mask_a)
+
+
+def _kernel_slots(kind, geom_a, geom_b, dim):
+    """K of a kernel, from its output shape (no computation)."""
+    pose = (jax.ShapeDtypeStruct((dim,), jnp.float64), jax.ShapeDtypeStruct((dim, dim), jnp.float64))
+    spec = lambda arrays: tuple(jax.ShapeDtypeStruct(np.shape(a), jnp.float64) for a in arrays)
+    out = jax.eval_shape(KERNELS[kind], spec(geom_a), spec(geom_b), pose, pose)
+    return out.dist.shape[0]
+
+
+def build_pair_groups(shapes, body_filters, planes, plane_filters, dim, broadphase, capacity=None):
+    """The static pair table.
+
+    Args:
+        shapes: per-body shape or None.
+        body_filters: per-body (category bits, mask bits).
+        planes: tuple of (normal tuple, offset).
+        plane_filters: per-plane (category bits, mask bits).
+        dim: 2 or 3.
+        broadphase: "all_pairs" or "spheres" (body–body groups only; planes
+            always run all their pairs).
+        capacity: pairs per body–body group the ``spheres`` broadphase keeps;
+            default 4 per body of the scene.
+
+    Returns:
+        (tuple of PairGroup, tuple of skipped pair kinds).
+    """
+    geoms = [geometry(shape, dim) if shape is not None else None for shape in shapes]
+    buckets: dict = {}
+    skipped = set()
+
+    def add(kind, a, b, b_is_plane, size_key):
+        if kind not in KERNELS:
+            skipped.add(kind)
+            return
+        buckets.setdefault((kind, b_is_plane, size_key), []).append((a, b))
+
+    for a, geom in enumerate(geoms):
+        if geom is None:
+            continue
+        for p, (normal, offset) in enumerate(planes):
+            if _can_collide(body_filters[a], plane_filters[p]):
+                add(f"{geom[0]}_plane", a, p, True, tuple(np.shape(x) for x in geom[1]))
+        for b in range(a + 1, len(geoms)):
+            if geoms[b] is None or not _can_collide(body_filters[a], body_filters[b]):
+                continue
+            kind, swap = pair_kind(geom[0], geoms[b][0])
+            first, second = (b, a) if swap else (a, b)
+            size_key = (tuple(np.shape(x) for x in geoms[first][1]),
+                        tuple(np.shape(x) for x in geoms[second][1]))
+            add(kind, first, second, False, size_key)
+
+    groups, key_offset = [], 0
+    for (kind, b_is_plane, _), pairs in sorted(buckets.items(), key=lambda item: str(item[0])):
+        body_a = tuple(a for a, _ in pairs)
+        body_b = tuple(b for _, b in pairs)
+        geom_a = geoms[body_a[0]][1]
+        geom_b = (np.asarray(planes[body_b[0]][0]), np.float64(planes[body_b[0]][1])) if b_is_plane \
+            else geoms[body_b[0]][1]
+        slots = _kernel_slots(kind, geom_a, geom_b, dim)
+        group_capacity = len(pairs)
+        if broadphase == "spheres" and not b_is_plane:
+            group_capacity = min(len(pairs), capacity if capacity else 4 * len(shapes))
+        groups.append(PairGroup(kind=kind, body_a=body_a, body_b=body_b, b_is_plane=b_is_plane,
+                                capacity=group_capacity, slots=slots, key_offset=key_offset))
+        key_offset += len(pairs) * slots
+    return tuple(groups), tuple(sorted(skipped))
+
+
+def shape_poses(model: Model, params: Params, state: State):
+    """World pose of every body's shape frame: origins (n, dim), rotations (n, dim, dim)."""
+    if model.dim == 3:
+        rotation = quat_ops.to_rotation_matrix(state.quat)
+        origin = state.pos - quat_ops.rotate(state.quat, params.com_offset)
+    else:
+        rotation = rot2(state.angle)
+        origin = state.pos - jnp.einsum("nij,nj->ni", rotation, params.com_offset)
+    return origin, rotation
+
+
+def _stack_geometry(model, bodies, dtype):
+    arrays = [geometry(model.shapes[b], model.dim)[1] for b in bodies]
+    return tuple(jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0])))
+
+
+def _point_velocity(model, state, body, point):
+    """Velocity of the material point at ``point`` of each ``body`` (static rows give 0)."""
+    num = model.num_bodies
+    vel = jnp.concatenate([state.vel, jnp.zeros_like(state.vel[:1])])[body]
+    angvel = jnp.concatenate([state.angvel, jnp.zeros_like(state.angvel[:1])])[body]
+    pos = jnp.concatenate([state.pos, jnp.zeros_like(state.pos[:1])])[body]
+    arm = point - pos
+    if model.dim == 3:
+        return vel + cross(angvel, arm)
+    return vel + jnp.stack([-angvel * arm[..., 1], angvel * arm[..., 0]], axis=-1)
+
+
+def _mix_friction(mu_a, mu_b):
+    product = mu_a * mu_b
+    positive = product > 0.0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, product, 1.0)), 0.0)
+
+
+def detect(model: Model, params: Params, state: State) -> ContactSet:
+    """Run the pair table on ``state``: every contact slot, classified.
+
+    Returns a :class:`ContactSet` with ``model.num_contacts`` rows.
+    """
+    dtype = state.pos.dtype
+    origin, rotation = shape_poses(model, params, state)
+    num = model.num_bodies
+    parts, overflow = [], jnp.zeros((), dtype=bool)
+    for group in model.pair_groups:
+        body_a = jnp.asarray(group.body_a, dtype=jnp.int32)
+        body_b = jnp.asarray(group.body_b, dtype=jnp.int32)
+        geom_a = _stack_geometry(model, group.body_a, dtype)
+        if group.b_is_plane:
+            normals = np.asarray([model.planes[p][0] for p in group.body_b], dtype=np.float64)
+            offsets = np.asarray([model.planes[p][1] for p in group.body_b], dtype=np.float64)
+            geom_b = (jnp.asarray(normals, dtype=dtype), jnp.asarray(offsets, dtype=dtype))
+            pose_b = (jnp.zeros((len(group.body_b), model.dim), dtype),
+                      jnp.broadcast_to(jnp.eye(model.dim, dtype=dtype), (len(group.body_b), model.dim, model.dim)))
+        else:
+            geom_b = _stack_geometry(model, group.body_b, dtype)
+            pose_b = (origin[body_b], rotation[body_b])
+        pose_a = (origin[body_a], rotation[body_a])
+        pair_ids = jnp.arange(len(group.body_a), dtype=jnp.int32)
+        in_use = jnp.ones((len(group.body_a),), dtype=bool)
+        if group.capacity < len(group.body_a):
+            radius = lambda bodies: jnp.asarray(
+                [bounding_radius(*geometry(model.shapes[b], model.dim)) for b in bodies], dtype=dtype)
+            gap = safe_norm(pose_a[0] - pose_b[0]) - radius(group.body_a) - radius(group.body_b)
+            near = gap < params.contact_margin + params.dt * safe_norm(state.vel[body_a] - state.vel[body_b])
+            overflow = overflow | (jnp.sum(near) > group.capacity)
+            pair_ids = jnp.nonzero(near, size=group.capacity, fill_value=0)[0].astype(jnp.int32)
+            in_use = near[pair_ids]
+            pick = lambda tree: jax.tree_util.tree_map(lambda x: x[pair_ids], tree)
+            geom_a, geom_b, pose_a, pose_b = pick(geom_a), pick(geom_b), pick(pose_a), pick(pose_b)
+            body_a, body_b = body_a[pair_ids], body_b[pair_ids]
+        found = jax.vmap(KERNELS[group.kind])(geom_a, geom_b, pose_a, pose_b)
+        slots = group.slots
+        mu_a, e_a = params.friction[body_a], params.restitution[body_a]
+        if group.b_is_plane:
+            mu_b, e_b = params.plane_friction[body_b], params.plane_restitution[body_b]
+            body_b = jnp.full_like(body_b, num)
+        else:
+            mu_b, e_b = params.friction[body_b], params.restitution[body_b]
+        repeat = lambda x: jnp.repeat(x, slots, axis=0)
+        key = (group.key_offset + pair_ids[:, None] * slots + jnp.arange(slots, dtype=jnp.int32)).reshape(-1)
+        parts.append(dict(
+            body_a=repeat(body_a), body_b=repeat(body_b),
+            dist=found.dist.reshape(-1), normal=found.normal.reshape(-1, model.dim),
+            point=found.point.reshape(-1, model.dim), valid=(found.valid & in_use[:, None]).reshape(-1),
+            friction=repeat(_mix_friction(mu_a, mu_b)), restitution=repeat(jnp.maximum(e_a, e_b)),
+            key=key))
+    merged = {name: jnp.concatenate([part[name] for part in parts]) for name in parts[0]}
+    normal_velocity = jnp.sum(merged["normal"] * (
+        _point_velocity(model, state, merged["body_a"], merged["point"])
+        - _point_velocity(model, state, merged["body_b"], merged["point"])), axis=-1)
+    # Speculative margin: a contact approaching fast is kept from farther away.
+    reach = params.contact_margin + params.dt * jnp.maximum(-normal_velocity, 0.0)
+    active = merged.pop("valid") & (merged["dist"] < reach)
+    threshold = params.bounce_threshold
+    status = jnp.where(normal_velocity < -threshold, COLLIDING,
+                       jnp.where(normal_velocity > threshold, SEPARATING, RESTING))
+    status = jnp.where(active, status, INACTIVE).astype(jnp.int8)
+    return ContactSet(active=active, normal_velocity=normal_velocity, status=status,
+                      overflow=overflow, **merged)

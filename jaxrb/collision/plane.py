@@ -1,0 +1,62 @@
+"""Kernels of every shape against a static plane (B is always the plane).
+
+They are dimension-agnostic: the same code serves 3D planes and 2D half-planes.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import jax.numpy as jnp
+
+from jaxrb.collision.contacts import Contacts
+
+
+def _against_plane(points, radius, plane):
+    """Contacts of world points swept by ``radius`` against a plane. points: (K, dim)."""
+    normal, offset = plane
+    height = points @ normal - offset
+    dist = height - radius
+    # Midway between the shape's surface (height - radius) and the plane (0).
+    point = points - (0.5 * (height + radius))[:, None] * normal
+    count = points.shape[0]
+    return Contacts(dist=dist, normal=jnp.broadcast_to(normal, points.shape), point=point,
+                    valid=jnp.ones((count,), dtype=bool))
+
+
+def sphere_plane(geom_a, geom_b, pose_a, pose_b):
+    """Sphere (or circle) against a plane: 1 contact."""
+    (radius,), (origin, _) = geom_a, pose_a
+    return _against_plane(origin[None, :], radius, geom_b)
+
+
+def capsule_plane(geom_a, geom_b, pose_a, pose_b):
+    """Capsule against a plane: its two segment ends, 2 contacts."""
+    radius, half_length = geom_a
+    origin, rotation = pose_a
+    axis = rotation[:, 2]
+    ends = jnp.stack([origin + half_length * axis, origin - half_length * axis])
+    return _against_plane(ends, radius, geom_b)
+
+
+_BOX_CORNERS = tuple(itertools.product((-1.0, 1.0), repeat=3))
+
+
+def box_plane(geom_a, geom_b, pose_a, pose_b):
+    """Box against a plane: its 8 corners, 8 contacts (those below the margin matter)."""
+    (half_extents,), (origin, rotation) = geom_a, pose_a
+    signs = jnp.asarray(_BOX_CORNERS, dtype=half_extents.dtype)  # scene dtype, never promoted
+    corners = origin + (signs * half_extents) @ rotation.T
+    return _against_plane(corners, 0.0, geom_b)
+
+
+def points_plane(geom_a, geom_b, pose_a, pose_b):
+    """Point-mass body (or any vertex set) against a plane: one contact per point."""
+    (points,), (origin, rotation) = geom_a, pose_a
+    return _against_plane(origin + points @ rotation.T, 0.0, geom_b)
+
+
+def polygon_plane(geom_a, geom_b, pose_a, pose_b):
+    """2D convex polygon against a half-plane: one contact per vertex."""
+    vertices, _ = geom_a
+    return points_plane((vertices,), geom_b, pose_a, pose_b)

@@ -1,0 +1,1 @@
+"""Contact response: penalty forces and the impulse solver."""

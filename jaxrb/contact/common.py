@@ -1,0 +1,73 @@
+"""Contact kinematics shared by the penalty and impulse models, for 2D and 3D.
+
+Bodies are padded with one static row (index n) of zero inverse mass, so a
+contact against a plane uses the same code as one between two bodies.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxrb import quaternion as quat_ops
+from jaxrb.dynamics import inverse_inertia
+from jaxrb.math import cross, cross2, cross_scalar2, matvec3
+from jaxrb.types import Model, Params, State
+
+
+def pad(array):
+    """Append one zero row (the static body). array: (n, ...) -> (n + 1, ...)."""
+    return jnp.concatenate([array, jnp.zeros_like(array[:1])])
+
+
+def spin_cross(model: Model, angvel, arm):
+    """ω × r. angvel: (..., 3) or (...) in 2D; arm: (..., dim)."""
+    return cross(angvel, arm) if model.dim == 3 else cross_scalar2(angvel, arm)
+
+
+def moment(model: Model, arm, force):
+    """r × f: (..., 3) in 3D, (...) in 2D."""
+    return cross(arm, force) if model.dim == 3 else cross2(arm, force)
+
+
+def apply_inverse_inertia(model: Model, inv_inertia, torque):
+    """I_w⁻¹ τ for world inverse inertia (..., 3, 3) or (...) in 2D."""
+    return matvec3(inv_inertia, torque) if model.dim == 3 else inv_inertia * torque
+
+
+def world_inverse_inertia(model: Model, params: Params, state: State):
+    """Padded world inverse inertia: (n + 1, 3, 3) R I⁻¹ Rᵀ in 3D, (n + 1,) in 2D."""
+    body_inverse = inverse_inertia(params, model.dim)
+    if model.dim == 2:
+        return pad(body_inverse)
+    rotation = quat_ops.to_rotation_matrix(state.quat)
+    return pad(jnp.einsum("nij,njk,nlk->nil", rotation, body_inverse, rotation))
+
+
+def effective_mass(model, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b, arm_a, arm_b, direction):
+    """1 / (m_a⁻¹ + m_b⁻¹ + Σ (r × d)·I⁻¹(r × d)) along ``direction`` (C, dim)."""
+    total = inv_mass_a + inv_mass_b
+    for inv_inertia, arm in ((inv_inertia_a, arm_a), (inv_inertia_b, arm_b)):
+        arm_cross = moment(model, arm, direction)
+        angular = apply_inverse_inertia(model, inv_inertia, arm_cross) * arm_cross
+        total = total + (jnp.sum(angular, axis=-1) if model.dim == 3 else angular)
+    return 1.0 / total
+
+
+def tangent_basis(normal):
+    """Two unit tangents (C, 3) orthogonal to unit normals (C, 3), smooth away from flips."""
+    # Cross with the world axis least aligned with n: never parallel, no branch on values.
+    axis_x = jnp.abs(normal[..., 0]) < 0.57735
+    helper = jnp.where(axis_x[..., None], jnp.array([1.0, 0.0, 0.0], normal.dtype),
+                       jnp.array([0.0, 1.0, 0.0], normal.dtype))
+    first = cross(normal, helper)
+    first = first / jnp.sqrt(jnp.sum(first * first, axis=-1, keepdims=True))
+    return first, cross(normal, first)
+
+
+def contact_counts(model: Model, contacts):
+    """(n + 1,) number of active contacts touching each body (mass splitting)."""
+    active = contacts.active.astype(contacts.dist.dtype)
+    num = model.num_bodies + 1
+    return (jax.ops.segment_sum(active, contacts.body_a, num)
+            + jax.ops.segment_sum(active, contacts.body_b, num))
