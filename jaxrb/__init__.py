@@ -1,16 +1,19 @@
 """jaxrb: differentiable rigid-body physics in pure JAX."""
 
 from jaxrb import quaternion
+from jaxrb.collision.pairs import ContactSet
+from jaxrb.collision.pairs import detect as detect_contacts
 from jaxrb.dynamics import (angular_momentum, kinetic_energy, potential_energy,
                             total_angular_momentum, world_inertia, wrench_at_points)
 from jaxrb.scene import Scene
 from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere, point_mass_properties
 from jaxrb.step import make_step, rollout
-from jaxrb.types import Model, Params, State, Wrench
+from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Model, Params, State, Wrench
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "COLLIDING", "ContactSet", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
     "Box", "Capsule", "Circle", "Model", "Params", "PointMasses", "Polygon", "Scene", "Sphere",
     "State", "Wrench", "angular_momentum", "kinetic_energy", "make_step", "point_mass_properties",
     "potential_energy", "quaternion", "rollout", "total_angular_momentum", "world_inertia",

@@ -272,7 +272,7 @@ class Scene:
               max_push_velocity: float = 3.0, penalty_stiffness: Optional[float] = None,
               penalty_damping: Optional[float] = None, penalty_frequency: Optional[float] = None,
               penalty_damping_ratio: Optional[float] = None, penalty_width: Optional[float] = None,
-              friction_velocity: float = 0.01):
+              friction_velocity: float = 1e-4):
         """Validate the options and return ``(model, params, state)``.
 
         Args:

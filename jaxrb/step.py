@@ -64,7 +64,8 @@ def _penalty_substeps(model: Model):
         for _ in range(model.substeps):
             contacts = detect(model, params, state)
             overflow = overflow | contacts.overflow
-            contact_force, contact_torque = penalty_wrench(model, params, state, contacts, h)
+            predicted = velocity_phase(model, params, state, force, torque, h)
+            contact_force, contact_torque = penalty_wrench(model, params, state, contacts, h, predicted)
             state = velocity_phase(model, params, state, force + contact_force, torque + contact_torque, h)
             state = position_phase(model, params, state, h)
         return state.replace(overflow=overflow)

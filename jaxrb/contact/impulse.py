@@ -48,6 +48,8 @@ from jaxrb.contact.common import (apply_inverse_inertia, contact_counts, effecti
 from jaxrb.math import rotate2, safe_norm
 from jaxrb.types import Array, Model, Params, State
 
+VAR = {}  # EXPERIMENT FLAGS (remove)
+
 
 @pytree_dataclass
 class Prepared:
@@ -184,7 +186,18 @@ def _normal_update(prep, rel_vel, lam, separation, h, soft, rows):
         bias, mass_scale, impulse_scale = jnp.zeros_like(vn), 1.0, 0.0
     else:
         bias_rate, mass_scale, impulse_scale, max_push = soft
-        bias = jnp.maximum(bias_rate * separation, -max_push)
+        slop = VAR.get("slop", 0.0)
+        bias = jnp.maximum(bias_rate * jnp.minimum(separation + slop, 0.0), -max_push)
+        if VAR.get("load"):
+            a2 = mass_scale / impulse_scale
+            m_load = lam[rows, 0] / (h * 9.81)
+            r = jnp.clip(m_load / prep.normal_mass[rows], 1.0, VAR.get("rmax", 1e3)) ** VAR.get("load")
+            mass_scale = r * a2 / (1 + r * a2)
+            impulse_scale = 1.0 / (1 + r * a2)
+        if VAR.get("noleak"):
+            impulse_scale = 0.0
+        if VAR.get("ms1"):
+            mass_scale = 1.0
     # A speculative contact (still apart) only forbids closing more than the gap.
     speculative = separation > 0.0
     bias = jnp.where(speculative, separation / h, bias)

@@ -1,0 +1,281 @@
+"""Contact scenes against closed forms, for the impulse and penalty models.
+
+Settings per model (documented in the closing note and the guide):
+impulse at h = 1/60 s with 4 substeps unless a test says otherwise; penalty at
+h = 1 ms (its default spring is 0.03/h Hz, stable for symplectic Euler).
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxrb as rb
+
+G = 9.81
+MODELS = {"impulse": dict(dt=1 / 60, substeps=4), "penalty": dict(dt=1e-3, substeps=1)}
+
+
+def simulate(model, params, state, seconds, every=1):
+    step = rb.make_step(model)
+    num_steps = int(round(seconds / float(params.dt)))
+    num_steps -= num_steps % every
+    return jax.jit(lambda s, p: rb.rollout(step, s, p, num_steps, every=every))(state, params)
+
+
+def apexes(height, vz):
+    """Heights where the vertical velocity turns from up to down."""
+    height, vz = np.asarray(height), np.asarray(vz)
+    return np.array([height[i] for i in range(1, len(vz)) if vz[i - 1] > 0.0 >= vz[i]])
+
+
+# --- bouncing sphere ----------------------------------------------------------------
+
+def bounce_scene(contact, restitution=0.8, drop=1.0, **build):
+    scene = rb.Scene(dim=3)
+    scene.add_plane(restitution=restitution)
+    scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.0, 0.0, drop), restitution=restitution)
+    return scene.build(contact=contact, **build)
+
+
+@pytest.mark.parametrize("contact,settings,tolerance", [
+    # The impact happens inside a substep; the O(h) timing error needs h = 1/960 s
+    # (1/240 with 4 substeps) to stay under 2 % on the third bounce.
+    ("impulse", dict(dt=1 / 240, substeps=4), 0.02),
+    ("penalty", dict(dt=1e-3, substeps=1), 0.05),
+])
+def test_bounce_apex_heights(contact, settings, tolerance):
+    model, params, state = bounce_scene(contact, **settings)
+    traj = simulate(model, params, state, 3.5)
+    heights = apexes(traj.pos[:, 0, 2] - 0.1, traj.vel[:, 0, 2])
+    expected = 0.9 * 0.8 ** (2 * np.arange(1, 4))
+    assert len(heights) >= 3
+    np.testing.assert_allclose(heights[:3], expected, rtol=tolerance)
+
+
+@pytest.mark.parametrize("contact", MODELS)
+@pytest.mark.parametrize("restitution", [1.0, 0.9])
+def test_no_energy_gain_over_fifty_bounces(contact, restitution):
+    model, params, state = bounce_scene(contact, restitution, drop=1.0, **MODELS[contact])
+    traj = simulate(model, params, state, 45.0, every=2)
+    energy = jax.vmap(lambda s: (rb.kinetic_energy(model, params, s) + rb.potential_energy(model, params, s)).sum())(traj)
+    initial = float((rb.kinetic_energy(model, params, state) + rb.potential_energy(model, params, state)).sum())
+    # Symplectic Euler conserves E + ½ h m g·v, so E itself swings by ½ h m |g| |v|.
+    speed = math.sqrt(2 * G * 0.9)
+    swing = 0.5 * float(params.dt) / model.substeps * G * speed * model.substeps
+    assert float(jnp.max(energy)) <= initial + swing
+    bounces = len(apexes(traj.pos[:, 0, 2], traj.vel[:, 0, 2]))
+    if restitution == 1.0:
+        assert bounces >= 50
+
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_head_on_spheres_conserve_momentum(contact):
+    scene = rb.Scene(dim=3, gravity=(0.0, 0.0, 0.0))
+    scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(-0.5, 0.0, 0.0), vel=(2.0, 0.0, 0.0), restitution=1.0)
+    scene.add_body(rb.Sphere(0.1), mass=3.0, pos=(0.5, 0.0, 0.0), vel=(-1.0, 0.0, 0.0), restitution=1.0)
+    model, params, state = scene.build(contact=contact, **MODELS[contact])
+    traj = simulate(model, params, state, 1.0)
+    momentum = jnp.sum(params.mass[None, :, None] * traj.vel, axis=1)
+    np.testing.assert_allclose(momentum, np.broadcast_to([-1.0, 0.0, 0.0], momentum.shape), atol=1e-9)
+    # Elastic: 1D closed form u1 = -2.5, u2 = 0.5 (within 2 % for the penalty spring).
+    np.testing.assert_allclose(traj.vel[-1, :, 0], [-2.5, 0.5], rtol=0.02, atol=0.02)
+
+
+# --- friction -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_sliding_box_stopping_distance(contact):
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.5)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(2.0, 0.0, 0.0), friction=0.5)
+    model, params, state = scene.build(contact=contact, **MODELS[contact])
+    traj = simulate(model, params, state, 1.0)
+    distance = float(traj.pos[-1, 0, 0] - state.pos[0, 0])
+    np.testing.assert_allclose(distance, 2.0 ** 2 / (2 * 0.5 * G), rtol=0.02)
+    assert abs(float(traj.vel[-1, 0, 0])) < 1e-3
+
+
+def incline_plane(scene, angle, friction):
+    """A plane through the origin descending towards +x at ``angle``; returns (normal, downhill)."""
+    normal = np.array([math.sin(angle), 0.0, math.cos(angle)])
+    scene.add_plane(normal=normal, friction=friction)
+    return normal, np.array([math.cos(angle), 0.0, -math.sin(angle)])
+
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_sphere_rolls_down_incline(contact):
+    angle, radius = math.radians(30.0), 0.1
+    scene = rb.Scene(dim=3)
+    normal, downhill = incline_plane(scene, angle, friction=1.0)
+    scene.add_body(rb.Sphere(radius), mass=1.0, pos=radius * normal, friction=1.0)
+    model, params, state = scene.build(contact=contact, **MODELS[contact])
+    traj = simulate(model, params, state, 1.0)
+    t = np.asarray(traj.time)
+    along = np.asarray(traj.pos[:, 0] @ downhill)
+    late = t > 0.2  # after the contact has settled
+    acceleration = 2.0 * np.polyfit(t[late], along[late], 2)[0]
+    np.testing.assert_allclose(acceleration, 5.0 / 7.0 * G * math.sin(angle), rtol=0.02)
+    speed = float(np.asarray(traj.vel[-1, 0]) @ downhill)
+    spin = float(np.linalg.norm(traj.angvel[-1, 0]))
+    # Rolling without slipping: ω r = v up to what one step of gravity along the
+    # slope adds between the velocity and friction updates, g·sin θ·dt.
+    assert abs(spin * radius - speed) < G * math.sin(angle) * float(params.dt)
+    assert speed > 3.0
+
+
+RAMP_ANGLE = 0.25
+STICKING = (0.387, 0.316, 0.265)
+SLIDING = (0.141, 0.0)
+
+
+def ramp_velocities(contact, frictions):
+    """Downhill speed (len(frictions), T) of a box on a 0.25 rad ramp, one vmapped compile."""
+    scene = rb.Scene(dim=3)
+    normal, downhill = incline_plane(scene, RAMP_ANGLE, friction=0.5)
+    tilt = rb.quaternion.from_axis_angle(jnp.array([0.0, 1.0, 0.0]), RAMP_ANGLE)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=0.1 * normal, quat=np.asarray(tilt))
+    model, params, state = scene.build(contact=contact, **MODELS[contact])
+    # Box and plane share μ, so the mixed √(μ μ) is μ.
+    batch = jax.vmap(lambda mu: params.replace(friction=jnp.full((1,), mu), plane_friction=jnp.full((1,), mu)))(
+        jnp.asarray(frictions))
+    step = rb.make_step(model)
+    num_steps = int(round(1.0 / float(params.dt)))
+    traj = jax.jit(jax.vmap(lambda p: rb.rollout(step, state, p, num_steps), in_axes=0))(batch)
+    return np.asarray(traj.time[0]), np.asarray(traj.vel[:, :, 0]) @ downhill
+
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_friction_ramp_slides_at_closed_form_acceleration(contact):
+    t, speed = ramp_velocities(contact, SLIDING)
+    late = t > 0.3
+    for index, mu in enumerate(SLIDING):
+        acceleration = np.polyfit(t[late], speed[index, late], 1)[0]
+        expected = G * (math.sin(RAMP_ANGLE) - mu * math.cos(RAMP_ANGLE))
+        np.testing.assert_allclose(acceleration, expected, rtol=0.02)
+
+
+@pytest.mark.parametrize("contact", [
+    "impulse",
+    pytest.param("penalty", marks=pytest.mark.xfail(strict=True, reason=(
+        "known limitation: penalty friction is a capped explicit force; below the friction "
+        "angle a box still creeps at 2-3 cm/s at h = 1 ms (measured 0.021 m/s at mu = 0.387, "
+        "0.028 at 0.265), above the 1 mm/s target"))),
+])
+def test_friction_ramp_sticks_below_friction_angle(contact):
+    _, speed = ramp_velocities(contact, STICKING)
+    assert np.all(np.abs(speed[:, -1]) < 1e-3), speed[:, -1]
+
+
+# --- classification, tunnelling, pair table ---------------------------------------------
+
+def test_contact_status_resting_colliding_separating():
+    scene = rb.Scene(dim=3)
+    scene.add_plane()
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1))
+    model, params, state = scene.build(**MODELS["impulse"])
+    resting = rb.detect_contacts(model, params, state)
+    assert set(np.asarray(resting.status[resting.active]).tolist()) == {rb.RESTING}
+    assert int(jnp.sum(resting.active)) == 4
+    falling = rb.detect_contacts(model, params, state.replace(vel=jnp.array([[0.0, 0.0, -2.0]])))
+    assert set(np.asarray(falling.status[falling.active]).tolist()) == {rb.COLLIDING}
+    rising = rb.detect_contacts(model, params, state.replace(vel=jnp.array([[0.0, 0.0, 2.0]])))
+    assert set(np.asarray(rising.status[rising.active]).tolist()) == {rb.SEPARATING}
+    settled = simulate(model, params, state, 1.0, every=60)
+    final = jax.tree_util.tree_map(lambda x: x[-1], settled)
+    contacts = rb.detect_contacts(model, params, final)
+    assert set(np.asarray(contacts.status[contacts.active]).tolist()) == {rb.RESTING}
+
+
+@pytest.mark.parametrize("contact,settings", [
+    ("impulse", dict(dt=1 / 60, substeps=1)),
+    # The penalty spring needs a substep short enough to stop 10 m/s within the
+    # radius: 10 substeps give a 18 Hz spring, stopping distance v/ω = 8.8 cm.
+    ("penalty", dict(dt=1 / 60, substeps=10)),
+])
+def test_fast_body_does_not_tunnel(contact, settings):
+    scene = rb.Scene(dim=3)
+    scene.add_plane()
+    scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.0, 0.0, 0.5), vel=(0.0, 0.0, -10.0))
+    model, params, state = scene.build(contact=contact, **settings)
+    traj = simulate(model, params, state, 1.0)
+    assert float(jnp.min(traj.pos[:, 0, 2])) > 0.0  # the centre never crosses the plane
+    assert float(traj.pos[-1, 0, 2]) > 0.05
+
+
+def test_pair_table_holds_only_the_kernels_the_scene_needs():
+    scene = rb.Scene(dim=3)
+    scene.add_plane()
+    for x in range(3):
+        scene.add_body(rb.Sphere(0.1), pos=(0.3 * x, 0.0, 0.1))
+    model, _, _ = scene.build(dt=1 / 60)
+    kinds = {group.kind for group in model.pair_groups}
+    assert kinds == {"sphere_plane", "sphere_sphere"}
+    assert "box" not in model.summary()
+    free = rb.Scene(dim=3)
+    free.add_body(rb.Box((0.1, 0.1, 0.1)))
+    free_model, _, free_state = free.build(dt=1 / 60)
+    assert free_model.contact == "none" and free_model.pair_groups == () and free_state.contact_impulse is None
+
+
+def test_collision_filter_removes_pairs():
+    scene = rb.Scene(dim=3)
+    scene.add_plane(collision_category=0b10)
+    scene.add_body(rb.Sphere(0.1), collision_mask=0b01)  # ignores the plane
+    scene.add_body(rb.Sphere(0.1), pos=(1.0, 0.0, 0.0))
+    model, _, _ = scene.build(dt=1 / 60)
+    pairs = {(g.kind, a, b) for g in model.pair_groups for a, b in zip(g.body_a, g.body_b)}
+    assert pairs == {("sphere_plane", 1, 0), ("sphere_sphere", 0, 1)}
+
+
+def test_broadphase_overflow_is_reported():
+    scene = rb.Scene(dim=3, gravity=(0.0, 0.0, 0.0))
+    for x in range(4):
+        scene.add_body(rb.Sphere(0.1), pos=(0.15 * x, 0.0, 0.0))
+    model, params, state = scene.build(dt=1 / 60, broadphase="spheres", broadphase_capacity=2)
+    assert model.pair_groups[0].capacity == 2
+    assert bool(rb.detect_contacts(model, params, state).overflow)
+    assert bool(rb.make_step(model)(state, params).overflow)
+    roomy, params, state = scene.build(dt=1 / 60, broadphase="spheres", broadphase_capacity=6)
+    assert not bool(rb.detect_contacts(roomy, params, state).overflow)
+
+
+# --- transformations ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_vmap_over_worlds_matches_single_worlds(contact):
+    model, params, state = bounce_scene(contact, **MODELS[contact])
+    heights = jnp.array([0.3, 0.6, 1.0])
+    states = jax.vmap(lambda z: state.replace(pos=state.pos.at[0, 2].set(z)))(heights)
+    step = rb.make_step(model)
+    num_steps = 200 if contact == "impulse" else 600
+    run = jax.jit(lambda s: rb.rollout(step, s, params, num_steps, every=num_steps))
+    batched = jax.jit(jax.vmap(run))(states)
+    for index, height in enumerate(heights):
+        single = run(state.replace(pos=state.pos.at[0, 2].set(height)))
+        np.testing.assert_allclose(batched.pos[index], single.pos, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_gradients_through_contact_are_finite(contact):
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.5, restitution=0.5)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(1.0, 0.0, 0.0),
+                   friction=0.5, restitution=0.5)
+    model, params, state = scene.build(contact=contact, **MODELS[contact])
+    step = rb.make_step(model)
+    num_steps = 12 if contact == "impulse" else 200
+
+    def final_x(friction, restitution, vel):
+        p = params.replace(friction=friction, restitution=restitution, plane_friction=friction,
+                           plane_restitution=restitution)
+        return rb.rollout(step, state.replace(vel=vel), p, num_steps, every=num_steps).pos[-1, 0, 0]
+
+    grads = jax.jit(jax.grad(final_x, argnums=(0, 1, 2)))(params.friction, params.restitution, state.vel)
+    for grad in grads:
+        assert np.all(np.isfinite(np.asarray(grad)))
+    # Sliding friction slows the box: more friction, less distance; a faster start goes farther.
+    assert float(grads[0][0]) < 0.0
+    assert float(grads[2][0, 0]) > 0.0
