@@ -280,9 +280,11 @@ class Scene:
             integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``.
             orientation: ``"first_order"`` or ``"exp_map"`` (default). RK4 integrates
                 the quaternion ODE itself, so it takes no orientation option.
-            contact: ``"none"``, ``"penalty"`` or ``"impulse"``; default
-                ``"impulse"`` when any pair can touch, else ``"none"``. Contact
-                needs ``semi_implicit`` or ``implicit_gyro`` (velocity first).
+            contact: ``"none"``, ``"penalty"`` or ``"impulse"``. Contact needs a
+                velocity-first integrator (``semi_implicit`` or
+                ``implicit_gyro``); the default is ``"impulse"`` when any pair
+                can touch and the integrator is one of those, else ``"none"``
+                (so ``euler`` and ``rk4`` scenes are free-body scenes).
             substeps: integration substeps per ``step`` call, >= 1.
             dtype: floating dtype of Params and State; default JAX's default float
                 (float64 when x64 is enabled, else float32).
@@ -331,11 +333,13 @@ class Scene:
             [b.shape for b in self._bodies], [b.collision_filter for b in self._bodies],
             tuple((tuple(p.normal.tolist()), p.offset) for p in self._planes),
             [p.collision_filter for p in self._planes], self.dim, broadphase, broadphase_capacity)
-        contact = check_option("contact", ("impulse" if pair_groups else "none") if contact is None
-                               else contact, CONTACT_MODELS)
+        velocity_first = integrator in ("semi_implicit", "implicit_gyro")
+        if contact is None:
+            contact = "impulse" if pair_groups and velocity_first else "none"
+        check_option("contact", contact, CONTACT_MODELS)
         if contact == "none":
             pair_groups = ()
-        elif integrator not in ("semi_implicit", "implicit_gyro"):
+        elif not velocity_first:
             raise ValueError(f"scene.build: contact {contact!r} needs a velocity-first integrator "
                              f"('semi_implicit' or 'implicit_gyro'), got {integrator!r}")
         if not (isinstance(substeps, (int, np.integer)) and not isinstance(substeps, bool)

@@ -427,9 +427,13 @@ def test_build_shapes_and_dtypes(dim, dtype):
     for name, shape in state_shapes.items():
         assert getattr(state, name).shape == shape, name
     assert (state.angle is None) if dim == 3 else (state.quat is None)
-    # Every leaf has exactly the requested dtype: nothing promoted to float64 in float32.
+    # Every floating leaf has exactly the requested dtype: nothing promoted to
+    # float64 in float32. (Contact keys are int32 and the overflow flag bool.)
     for leaf in jax.tree_util.tree_leaves((params, state)):
-        assert leaf.dtype == jnp.dtype(dtype), leaf.dtype
+        if jnp.issubdtype(leaf.dtype, jnp.floating):
+            assert leaf.dtype == jnp.dtype(dtype), leaf.dtype
+        else:
+            assert leaf.dtype in (jnp.int32, jnp.bool_), leaf.dtype
     assert model.dim == dim and model.num_bodies == 3
     assert float(params.dt) == pytest.approx(1e-3, rel=1e-6)
     assert float(state.time) == 0.0

@@ -25,7 +25,7 @@ def mixed_scene(dim=3, integrator="semi_implicit", dtype=None, damping=0.0):
         scene.add_body(rb.Box((0.1, 0.2)), mass=1.0, pos=(0, 1), angvel=2.0, vel=(0.3, 1),
                        linear_damping=damping, angular_damping=damping)
         scene.add_body(rb.Polygon([(0, 0), (0.3, 0), (0.1, 0.2)]), density=10.0, angle=0.4, angvel=-1.0)
-    return scene.build(dt=0.01, integrator=integrator, dtype=dtype)
+    return scene.build(dt=0.01, integrator=integrator, dtype=dtype, contact="none")
 
 
 @pytest.fixture(scope="module")
