@@ -43,7 +43,9 @@ def make_step(model: Model) -> Callable:
     return step
 
 
-# Substeps are few and fixed: each runner unrolls them in Python so XLA fuses across them.
+# Free-body substeps are unrolled in Python so XLA fuses across them; the impulse
+# solver's substeps and passes are fori_loops, compiled once (unrolling them made
+# a one-box gradient take minutes to compile).
 
 def _free_substeps(model: Model):
     advance = INTEGRATORS[model.integrator]
@@ -87,27 +89,34 @@ def _impulse_substeps(model: Model):
             return state.replace(vel=vel[:-1], angvel=angvel[:-1])
 
         def solve(state, lam, soft, passes):
-            vel, angvel = pad(state.vel), pad(state.angvel)
+            if passes == 0:
+                return state, lam
             separation = impulse.current_separation(model, prep, state)
-            for _ in range(passes):
-                vel, angvel, lam = impulse.solve_pass(model, prep, vel, angvel, lam, separation, h, soft)
+            # A fori_loop, not a Python loop: the pass is compiled once, which
+            # keeps compile time (and the reverse-mode program) small.
+            vel, angvel, lam = jax.lax.fori_loop(
+                0, passes, lambda _, carry: impulse.solve_pass(model, prep, *carry, separation, h, soft),
+                (pad(state.vel), pad(state.angvel), lam))
             return state.replace(vel=vel[:-1], angvel=angvel[:-1]), lam
 
-        for _ in range(model.substeps):
+        def substep(_, carry):
+            state, lam, prep_now = carry
             state = velocity_phase(model, params, state, force, torque, h)
             # Restitution uses the approach speed including this substep's loads
             # (gravity): the speed the contact is actually hit with.
-            prep = prep.replace(approach=impulse.normal_velocity(model, prep, state))
+            prep_now = prep_now.replace(approach=impulse.normal_velocity(model, prep_now, state))
             # Warm start: the substep begins with the last substep's (or step's) impulses.
-            state = apply(state, lam[:, :1] * prep.normal + lam[:, 1:])
+            state = apply(state, lam[:, :1] * prep_now.normal + lam[:, 1:])
             state, lam = solve(state, lam, soft, model.iterations)
             state = position_phase(model, params, state, h)
             state, lam = solve(state, lam, None, model.relax_iterations)
             # Bouncing in the substep of impact (not at the step's end) keeps a
             # bounce from waiting on the plane for the remaining substeps.
-            vel, angvel, lam = impulse.restitution_pass(model, prep, pad(state.vel), pad(state.angvel),
+            vel, angvel, lam = impulse.restitution_pass(model, prep_now, pad(state.vel), pad(state.angvel),
                                                         lam, params.bounce_threshold)
-            state = state.replace(vel=vel[:-1], angvel=angvel[:-1])
+            return state.replace(vel=vel[:-1], angvel=angvel[:-1]), lam, prep_now
+
+        state, lam, _ = jax.lax.fori_loop(0, model.substeps, substep, (state, lam, prep))
         return state.replace(contact_impulse=lam, contact_key=contacts.key, overflow=contacts.overflow)
 
     return run

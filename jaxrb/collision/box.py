@@ -328,6 +328,11 @@ def box_box(geom_a, geom_b, pose_a, pose_b):
     side plane count as inside (no duplicates at touching corners). When the
     faces do not overlap in projection (separated boxes offset sideways) one
     slot holds the lowest incident corner clamped into the reference face.
+    Slots are contact keys for the impulse solver's warm start, so they are
+    assigned by position, not by clipping order: slot j holds the point most
+    extreme along the direction 22.5° + 45°·j of the reference face's frame
+    (``_canonical_slots``); a box resting on an equal box keeps its corners in
+    slots 0, 2, 4, 6 whichever way it drifts by a hair.
 
     Edge axis: one contact at the closest points of the two facing edges
     (slot 0, their midpoint), ``dist`` = their separation along the normal

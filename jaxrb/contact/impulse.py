@@ -20,6 +20,20 @@ and impulse scales so it stays stable at any stiffness. Speculative contacts
 (positive separation s) only stop the approach beyond s/h, which is what keeps
 a 10 m/s body from tunnelling through a plane at h = 1/60 s.
 
+Stiffness and stacks. Per contact point the soft constraint is a spring
+k = m_eff ω² on the point's effective mass, so a pair carrying a load F sinks
+by F/(Σ m_eff ω²) and resists tilting with k·Σx² (x: the points' lever arms).
+A column of n boxes of height L on such springs buckles when that rotational
+stiffness is below about m·g·L·n³/12, whatever the solver does. Measured with
+0.2 m boxes at dt = 1/60 s: a 10-box 3D stack creeps and falls at 30 Hz and
+stands at 60 Hz; a 20-box 2D stack falls at 90 Hz and stands at 120 Hz; a
+100 kg box sinks 7 mm into a 1 kg box at 60 Hz, 1.8 mm at 120 Hz. Stiffer than
+a quarter of the substep rate the few Gauss–Seidel passes no longer converge
+(the 20-box stack falls at 150 Hz with 4 substeps; it stands with 12
+iterations), and leaving the steady sink out (no impulse leak, or a stiffness
+scaled by the load) made stacks jitter and fall too. So stiffness comes from
+substeps: ``scene.build``'s default hertz is that cap, 0.25·substeps/dt.
+
 Coulomb friction uses the circular cone: the accumulated friction impulse
 vector is clamped to μ·λ_n (two tangent directions in 3D, one in 2D).
 
@@ -47,8 +61,6 @@ from jaxrb.contact.common import (apply_inverse_inertia, contact_counts, effecti
                                   pad, spin_cross, tangent_basis, world_inverse_inertia)
 from jaxrb.math import rotate2, safe_norm
 from jaxrb.types import Array, Model, Params, State
-
-VAR = {}  # EXPERIMENT FLAGS (remove)
 
 
 @pytree_dataclass
@@ -186,18 +198,7 @@ def _normal_update(prep, rel_vel, lam, separation, h, soft, rows):
         bias, mass_scale, impulse_scale = jnp.zeros_like(vn), 1.0, 0.0
     else:
         bias_rate, mass_scale, impulse_scale, max_push = soft
-        slop = VAR.get("slop", 0.0)
-        bias = jnp.maximum(bias_rate * jnp.minimum(separation + slop, 0.0), -max_push)
-        if VAR.get("load"):
-            a2 = mass_scale / impulse_scale
-            m_load = lam[rows, 0] / (h * 9.81)
-            r = jnp.clip(m_load / prep.normal_mass[rows], 1.0, VAR.get("rmax", 1e3)) ** VAR.get("load")
-            mass_scale = r * a2 / (1 + r * a2)
-            impulse_scale = 1.0 / (1 + r * a2)
-        if VAR.get("noleak"):
-            impulse_scale = 0.0
-        if VAR.get("ms1"):
-            mass_scale = 1.0
+        bias = jnp.maximum(bias_rate * separation, -max_push)
     # A speculative contact (still apart) only forbids closing more than the gap.
     speculative = separation > 0.0
     bias = jnp.where(speculative, separation / h, bias)

@@ -1,0 +1,77 @@
+"""Stacks that must stand (impulse contact): issue-3 criteria over 10 s.
+
+Criteria: top-box horizontal drift < 1 cm, penetration < 5 mm, and max speed
+in the last second < 1 cm/s. Stiffness of the soft contact comes from
+substeps (default contact_hertz = 0.25·substeps/dt): 4 substeps at h = 1/60
+for the 3D stack and the 2D pyramid, 8 for the 20-box 2D stack and the 100:1
+mass ratio (see
+jaxrb/contact/impulse.py, "Stiffness and stacks").
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxrb as rb
+
+pytestmark = pytest.mark.slow
+HALF = 0.1  # 0.2 m boxes
+SECONDS = 10.0
+DT = 1.0 / 60.0
+
+
+def run_stack(scene, substeps):
+    model, params, state = scene.build(dt=DT, substeps=substeps)
+    step = rb.make_step(model)
+    traj = jax.jit(lambda s, p: rb.rollout(step, s, p, int(SECONDS / DT), every=6))(state, params)
+    return model, params, state, traj
+
+
+def check_standing(model, params, state, traj, top):
+    """Issue-3 criteria: top drift, deepest contact penetration, last-second speed."""
+    drift = float(jnp.max(jnp.linalg.norm(traj.pos[:, top, :-1] - state.pos[top, :-1], axis=-1)))
+    contacts = jax.jit(jax.vmap(lambda s: rb.detect_contacts(model, params, s)))(traj)
+    penetration = float(jnp.max(jnp.where(contacts.active, -contacts.dist, 0.0)))
+    last_second = int(1.0 / (6 * DT))
+    speed = float(jnp.max(jnp.linalg.norm(traj.vel[-last_second:], axis=-1)))
+    assert np.all(np.isfinite(np.asarray(traj.pos)))
+    assert drift < 0.01, f"top drifted {drift * 100:.2f} cm"
+    assert penetration < 0.005, f"penetration {penetration * 1000:.2f} mm"
+    assert speed < 0.01, f"moving at {speed * 100:.2f} cm/s in the last second"
+    # Still a stack: the top body is about where it started (no collapse).
+    assert abs(float(traj.pos[-1, top, -1] - state.pos[top, -1])) < 0.02
+
+
+def column(dim, count, masses=None):
+    scene = rb.Scene(dim=dim)
+    scene.add_plane(friction=0.5)
+    box = rb.Box((HALF,) * dim)
+    for index in range(count):
+        pos = (0.0,) * (dim - 1) + (HALF + 2 * HALF * index,)
+        scene.add_body(box, mass=1.0 if masses is None else masses[index], pos=pos, friction=0.5)
+    return scene
+
+
+def test_ten_box_stack_3d():
+    check_standing(*run_stack(column(3, 10), substeps=4), top=9)
+
+
+def test_twenty_box_stack_2d():
+    check_standing(*run_stack(column(2, 20), substeps=8), top=19)
+
+
+def test_mass_ratio_hundred_to_one():
+    check_standing(*run_stack(column(3, 2, masses=[1.0, 100.0]), substeps=8), top=1)
+
+
+def test_pyramid_of_ten_rows_2d():
+    scene = rb.Scene(dim=2)
+    scene.add_plane(friction=0.5)
+    top = 0
+    for row in range(10):
+        for column_index in range(10 - row):
+            x = (column_index - (9 - row) / 2.0) * 2 * HALF * 1.05
+            top = scene.add_body(rb.Box((HALF, HALF)), mass=1.0, pos=(x, HALF + 2 * HALF * row), friction=0.5)
+    assert scene.num_bodies == 55
+    check_standing(*run_stack(scene, substeps=4), top=top)
