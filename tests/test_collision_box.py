@@ -608,3 +608,21 @@ def test_surface_points_lie_on_both_surfaces(name):
             deepest_dist = np.min(np.asarray(contacts.dist)[valid])
             sdf_b = sdf_b[np.argmin(np.asarray(contacts.dist)[valid])] if deepest_dist > -geom_b[0] else 0.0
         np.testing.assert_allclose(sdf_b, 0.0, atol=1e-12)
+
+
+def test_box_box_slots_stable_under_tiny_shifts():
+    """Warm starts follow slots, so a resting cube nudged by 1 µm keeps each corner in its slot."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxrb.collision.box import box_box
+
+    half = (jnp.array([0.1, 0.1, 0.1]),)
+    rotation = jnp.eye(3)
+    base = box_box(half, half, (jnp.array([0.0, 0.0, 0.2]), rotation), (jnp.zeros(3), rotation))
+    for dx, dy in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+        shifted = box_box(half, half, (jnp.array([1e-6 * dx, 1e-6 * dy, 0.2]), rotation), (jnp.zeros(3), rotation))
+        np.testing.assert_array_equal(np.asarray(shifted.valid), np.asarray(base.valid))
+        valid = np.asarray(base.valid)
+        assert valid.sum() == 4
+        np.testing.assert_allclose(np.asarray(shifted.point)[valid], np.asarray(base.point)[valid], atol=1e-5)
