@@ -76,7 +76,8 @@ class Prepared:
         separation: (C,) separation at the step start.
         normal_mass: (C,); tangent_mass: tuple of (C,).
         friction, restitution: (C,).
-        approach: (C,) v_rel at the step start (negative when approaching).
+        approach: (C,) v_rel after the current substep's velocity phase (negative
+            when approaching); the restitution pass bounces against it.
         active: (C,) bool.
         inv_mass: (n + 1,) padded inverse masses, scaled for mass splitting.
         inv_inertia: padded world inverse inertia, scaled likewise.
