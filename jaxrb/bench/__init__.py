@@ -5,6 +5,8 @@
 * :mod:`jaxrb.bench.report`: Markdown tables, number formats, machine header.
 * :mod:`jaxrb.bench.free_body`: torque-free tumbling accuracy per integrator,
   and free-body throughput in body-steps per second.
+* :mod:`jaxrb.bench.contact`: contact-scene throughput (impulse and penalty
+  models; bounce, slide, drop, 3D stack, 2D pyramid).
 
 Importing this package has no side effects; the command line enables JAX's
 float64 mode for its own process.

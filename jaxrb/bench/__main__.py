@@ -10,17 +10,21 @@ import argparse
 import os
 import sys
 
-SECTIONS = ("tumbling", "throughput")
+SECTIONS = ("tumbling", "throughput", "contact")
 
 #: What each mode runs. ``quick`` is meant to finish well inside two minutes on
 #: two CPU cores; ``full`` inside about ten.
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60, 1 / 240), tumble_horizon=6.0, repeats=3,
                   throughput_integrators=("semi_implicit", "rk4"), batches=(1, 64),
-                  throughput_steps=1000, num_bodies=8),
+                  throughput_steps=1000, num_bodies=8,
+                  contact_scenes=("bounce", "slide", "drop"), contact_batches=(64, 16),
+                  contact_steps=100),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4"),
-                 batches=(1, 1024), throughput_steps=1000, num_bodies=8),
+                 batches=(1, 1024), throughput_steps=1000, num_bodies=8,
+                 contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
+                 contact_batches=(1024, 16), contact_steps=100),
 }
 
 
@@ -28,7 +32,7 @@ def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog="python -m jaxrb.bench",
         description="jaxrb benchmarks: integrator accuracy vs cost on a tumbling body, "
-                    "and free-body throughput. Prints Markdown and writes DIR/report.md.")
+                    "free-body throughput and contact throughput. Prints Markdown and writes DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
                         help="fewer configurations and shorter horizons (well under 2 minutes)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
@@ -63,6 +67,9 @@ def main(argv=None) -> int:
         "throughput": (f"{settings['num_bodies']} bodies, batches {list(settings['batches'])}, "
                        f"{settings['throughput_steps']} steps per jitted scan, float32, "
                        f"integrators {', '.join(settings['throughput_integrators'])}"),
+        "contact": (f"scenes {', '.join(settings['contact_scenes'])}, batches 1 and "
+                    f"{settings['contact_batches'][0]} (stacks: 1 and {settings['contact_batches'][1]}), "
+                    f"{settings['contact_steps']} steps per jitted scan, float32"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -83,6 +90,17 @@ def main(argv=None) -> int:
                 text, _ = free_body.throughput_section(
                     settings["throughput_integrators"], settings["batches"],
                     settings["throughput_steps"], settings["num_bodies"],
+                    repeats=settings["repeats"], log=log)
+            report.extend(text)
+            report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
+        if "contact" in args.only:
+            from jaxrb.bench import contact
+
+            report.heading("3. Contact throughput")
+            with Stopwatch() as watch:
+                text, _ = contact.contact_section(
+                    settings["contact_scenes"], settings["contact_batches"][0],
+                    settings["contact_batches"][1], settings["contact_steps"],
                     repeats=settings["repeats"], log=log)
             report.extend(text)
             report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
