@@ -68,8 +68,10 @@ def main(argv=None) -> int:
                        f"{settings['throughput_steps']} steps per jitted scan, float32, "
                        f"integrators {', '.join(settings['throughput_integrators'])}"),
         "contact": (f"scenes {', '.join(settings['contact_scenes'])}, batches 1 and "
-                    f"{settings['contact_batches'][0]} (stacks: 1 and {settings['contact_batches'][1]}), "
-                    f"{settings['contact_steps']} steps per jitted scan, float32"),
+                    f"{settings['contact_batches'][0]}"
+                    + (f" (stacks: 1 and {settings['contact_batches'][1]})"
+                       if {"stack3d", "pyramid2d"} & set(settings["contact_scenes"]) else "")
+                    + f", {settings['contact_steps']} steps per jitted scan, float32"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
