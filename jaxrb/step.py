@@ -62,7 +62,7 @@ def _penalty_substeps(model: Model):
     velocity_phase, position_phase = PHASES[model.integrator]
 
     def run(state, params, force, torque, h):
-        overflow = state.overflow
+        overflow = jnp.zeros((), dtype=bool)  # this step's substeps only, as State documents
         for _ in range(model.substeps):
             contacts = detect(model, params, state)
             overflow = overflow | contacts.overflow
