@@ -59,6 +59,12 @@ def angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body):
     return quat_ops.rotate(quat, angvel_body), angvel_body
 
 
+def body_angvel_and_momentum(params: Params, state: State):
+    """Body-frame ω (n, 3) and world angular momentum L = R I ω_b (n, 3) of a 3D state."""
+    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
+    return angvel_body, quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
+
+
 def _linear_accel(params, force):
     return force / params.mass[:, None]
 
@@ -83,8 +89,7 @@ def euler(model: Model, params: Params, state: State, force, torque, h) -> State
             alpha = alpha - params.angular_damping * state.angvel
         return state.replace(pos=pos, vel=vel, angle=state.angle + h * state.angvel,
                              angvel=state.angvel + h * alpha)
-    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
-    momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
+    angvel_body, momentum = body_angvel_and_momentum(params, state)
     torque_total = torque - params.angular_damping[:, None] * momentum if model.damping else torque
     quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, state.angvel, h)
     angvel, _ = angvel_from_momentum(quat, momentum + h * torque_total, params,
@@ -114,8 +119,7 @@ def semi_implicit_position(model: Model, params: Params, state: State, h) -> Sta
     pos = state.pos + h * state.vel
     if model.dim == 2:
         return state.replace(pos=pos, angle=state.angle + h * state.angvel)
-    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
-    momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
+    angvel_body, momentum = body_angvel_and_momentum(params, state)
     quat = quat_ops.ORIENTATION_UPDATES[model.orientation](state.quat, state.angvel, h)
     angvel, _ = angvel_from_momentum(quat, momentum, params, inverse_inertia(params, 3), angvel_body)
     return state.replace(pos=pos, quat=quat, angvel=angvel)
@@ -210,7 +214,7 @@ def rk4(model: Model, params: Params, state: State, force, torque, h) -> State:
         return state.replace(pos=pos, angle=angle, vel=vel, angvel=angvel)
 
     inv_inertia = inverse_inertia(params, 3)
-    angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
+    angvel_body, momentum = body_angvel_and_momentum(params, state)
 
     def derivative(y):
         pos, quat, vel, momentum = y
@@ -223,7 +227,6 @@ def rk4(model: Model, params: Params, state: State, force, torque, h) -> State:
             dmomentum = dmomentum - params.angular_damping[:, None] * momentum
         return vel, 0.5 * quat_ops.multiply(omega, quat), dvel, dmomentum
 
-    momentum = quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
     pos, quat, vel, momentum = _rk4_combine(derivative, (state.pos, state.quat, state.vel, momentum), h)
     quat = quat_ops.normalize(quat)
     angvel, _ = angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body)

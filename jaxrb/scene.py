@@ -63,6 +63,12 @@ class _Plane:
     collision_filter: tuple
 
 
+def _check_integer(field, value, low):
+    """Reject anything but an integer >= low (bools too) for a build option."""
+    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low):
+        raise ValueError(f"scene.build: {field!r} must be an integer >= {low}, got {value!r}")
+
+
 def _check_filter(check, category, mask):
     for field, value in (("collision_category", category), ("collision_mask", mask)):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or not 0 <= value <= ALL_BITS:
@@ -326,17 +332,15 @@ class Scene:
         orientation = check_option("orientation", "exp_map" if orientation is None else orientation,
                                    ORIENTATIONS)
         check_option("solver", solver, SOLVERS)
-        for field, value, low in (("iterations", iterations, 1), ("relax_iterations", relax_iterations, 0)):
-            if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low):
-                raise ValueError(f"scene.build: {field!r} must be an integer >= {low}, got {value!r}")
+        for field, value, low in (("substeps", substeps, 1), ("iterations", iterations, 1),
+                                   ("relax_iterations", relax_iterations, 0),
+                                   ("broadphase_capacity", broadphase_capacity, 1)):
+            if field != "broadphase_capacity" or value is not None:
+                _check_integer(field, value, low)
         pair_count = sum(1 for a in range(len(self._bodies)) for b in range(a))
         if broadphase is None:
             broadphase = "all_pairs" if pair_count <= ALL_PAIRS_LIMIT else "spheres"
         check_option("broadphase", broadphase, BROADPHASES)
-        if broadphase_capacity is not None and not (
-                isinstance(broadphase_capacity, (int, np.integer)) and broadphase_capacity >= 1):
-            raise ValueError(f"scene.build: 'broadphase_capacity' must be an integer >= 1, "
-                             f"got {broadphase_capacity!r}")
         pair_groups, skipped = build_pair_groups(
             [b.shape for b in self._bodies], [b.collision_filter for b in self._bodies],
             tuple((tuple(p.normal.tolist()), p.offset) for p in self._planes),
@@ -350,9 +354,6 @@ class Scene:
         elif not velocity_first:
             raise ValueError(f"scene.build: contact {contact!r} needs a velocity-first integrator "
                              f"('semi_implicit' or 'implicit_gyro'), got {integrator!r}")
-        if not (isinstance(substeps, (int, np.integer)) and not isinstance(substeps, bool)
-                and substeps >= 1):
-            raise ValueError(f"scene.build: 'substeps' must be an integer >= 1, got {substeps!r}")
         dtype = jax.dtypes.canonicalize_dtype(jnp.float64 if dtype is None else dtype)
         if not jnp.issubdtype(dtype, jnp.floating):
             raise ValueError(f"scene.build: 'dtype' must be a floating dtype, got {dtype}")

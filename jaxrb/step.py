@@ -75,6 +75,11 @@ def _penalty_substeps(model: Model):
     return run
 
 
+def _unpad(state: State, vel, angvel) -> State:
+    """Put padded (n + 1) solver velocities back into the state, dropping the static row."""
+    return state.replace(vel=vel[:-1], angvel=angvel[:-1])
+
+
 def _impulse_substeps(model: Model):
     velocity_phase, position_phase = PHASES[model.integrator]
 
@@ -86,7 +91,7 @@ def _impulse_substeps(model: Model):
 
         def apply(state, impulses):
             vel, angvel = impulse.apply_impulses(model, prep, pad(state.vel), pad(state.angvel), impulses)
-            return state.replace(vel=vel[:-1], angvel=angvel[:-1])
+            return _unpad(state, vel, angvel)
 
         def solve(state, lam, soft, passes):
             if passes == 0:
@@ -97,7 +102,7 @@ def _impulse_substeps(model: Model):
             vel, angvel, lam = jax.lax.fori_loop(
                 0, passes, lambda _, carry: impulse.solve_pass(model, prep, *carry, separation, h, soft),
                 (pad(state.vel), pad(state.angvel), lam))
-            return state.replace(vel=vel[:-1], angvel=angvel[:-1]), lam
+            return _unpad(state, vel, angvel), lam
 
         def substep(_, carry):
             state, lam, prep_now = carry
@@ -114,7 +119,7 @@ def _impulse_substeps(model: Model):
             # bounce from waiting on the plane for the remaining substeps.
             vel, angvel, lam = impulse.restitution_pass(model, prep_now, pad(state.vel), pad(state.angvel),
                                                         lam, params.bounce_threshold)
-            return state.replace(vel=vel[:-1], angvel=angvel[:-1]), lam, prep_now
+            return _unpad(state, vel, angvel), lam, prep_now
 
         state, lam, _ = jax.lax.fori_loop(0, model.substeps, substep, (state, lam, prep))
         return state.replace(contact_impulse=lam, contact_key=contacts.key, overflow=contacts.overflow)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from conftest import TUMBLE_ANGVEL, tumbling_scene
+from conftest import tumbling_scene
 
 INTEGRATORS = ["euler", "semi_implicit", "implicit_gyro", "rk4"]
 G = 9.81

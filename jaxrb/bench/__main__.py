@@ -77,35 +77,28 @@ def main(argv=None) -> int:
     })
     report.extend(bullet_list(info))
 
+    def section(title, run):
+        """Run one section, add its text and its wall time to the report."""
+        report.heading(title)
+        with Stopwatch() as watch:
+            text, _ = run()
+        report.extend(text)
+        report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
+
     with Stopwatch() as total:
         if "tumbling" in args.only:
-            report.heading("1. Torque-free tumbling (intermediate-axis flip)")
-            with Stopwatch() as watch:
-                text, _ = free_body.tumbling_section(settings["tumble_steps"],
-                                                     settings["tumble_horizon"],
-                                                     repeats=settings["repeats"], log=log)
-            report.extend(text)
-            report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
+            section("1. Torque-free tumbling (intermediate-axis flip)", lambda: free_body.tumbling_section(
+                settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log))
         if "throughput" in args.only:
-            report.heading("2. Free-body throughput")
-            with Stopwatch() as watch:
-                text, _ = free_body.throughput_section(
-                    settings["throughput_integrators"], settings["batches"],
-                    settings["throughput_steps"], settings["num_bodies"],
-                    repeats=settings["repeats"], log=log)
-            report.extend(text)
-            report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
+            section("2. Free-body throughput", lambda: free_body.throughput_section(
+                settings["throughput_integrators"], settings["batches"], settings["throughput_steps"],
+                settings["num_bodies"], repeats=settings["repeats"], log=log))
         if "contact" in args.only:
             from jaxrb.bench import contact
 
-            report.heading("3. Contact throughput")
-            with Stopwatch() as watch:
-                text, _ = contact.contact_section(
-                    settings["contact_scenes"], settings["contact_batches"][0],
-                    settings["contact_batches"][1], settings["contact_steps"],
-                    repeats=settings["repeats"], log=log)
-            report.extend(text)
-            report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
+            section("3. Contact throughput", lambda: contact.contact_section(
+                settings["contact_scenes"], settings["contact_batches"][0], settings["contact_batches"][1],
+                settings["contact_steps"], repeats=settings["repeats"], log=log))
     try:
         load = "{:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
     except (AttributeError, OSError):  # pragma: no cover

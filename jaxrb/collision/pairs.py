@@ -25,7 +25,8 @@ from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
 from jaxrb.collision import box, planar, plane, round as round_kernels
 from jaxrb.collision.geometry import geometry, pair_kind
-from jaxrb.math import cross, cross2, rot2, safe_norm
+from jaxrb.contact.common import pad, relative_velocity
+from jaxrb.math import rot2, safe_norm
 from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Array, Model, Params, State
 
 KERNELS = {
@@ -203,18 +204,6 @@ def _stack_geometry(model, bodies, dtype):
     return tuple(jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0])))
 
 
-def _point_velocity(model, state, body, point):
-    """Velocity of the material point at ``point`` of each ``body`` (static rows give 0)."""
-    num = model.num_bodies
-    vel = jnp.concatenate([state.vel, jnp.zeros_like(state.vel[:1])])[body]
-    angvel = jnp.concatenate([state.angvel, jnp.zeros_like(state.angvel[:1])])[body]
-    pos = jnp.concatenate([state.pos, jnp.zeros_like(state.pos[:1])])[body]
-    arm = point - pos
-    if model.dim == 3:
-        return vel + cross(angvel, arm)
-    return vel + jnp.stack([-angvel * arm[..., 1], angvel * arm[..., 0]], axis=-1)
-
-
 def _mix_friction(mu_a, mu_b):
     product = mu_a * mu_b
     positive = product > 0.0
@@ -274,9 +263,10 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
             friction=repeat(_mix_friction(mu_a, mu_b)), restitution=repeat(jnp.maximum(e_a, e_b)),
             key=key))
     merged = {name: jnp.concatenate([part[name] for part in parts]) for name in parts[0]}
-    normal_velocity = jnp.sum(merged["normal"] * (
-        _point_velocity(model, state, merged["body_a"], merged["point"])
-        - _point_velocity(model, state, merged["body_b"], merged["point"])), axis=-1)
+    pos = pad(state.pos)
+    rel_vel = relative_velocity(model, pad(state.vel), pad(state.angvel), merged["body_a"], merged["body_b"],
+                                merged["point"] - pos[merged["body_a"]], merged["point"] - pos[merged["body_b"]])
+    normal_velocity = jnp.sum(merged["normal"] * rel_vel, axis=-1)
     # Speculative margin: a contact approaching fast is kept from farther away.
     reach = params.contact_margin + params.dt * jnp.maximum(-normal_velocity, 0.0)
     active = merged.pop("valid") & (merged["dist"] < reach)

@@ -25,6 +25,21 @@ def spin_cross(model: Model, angvel, arm):
     return cross(angvel, arm) if model.dim == 3 else cross_scalar2(angvel, arm)
 
 
+def relative_velocity(model: Model, vel, angvel, body_a, body_b, arm_a, arm_b):
+    """v_A + ω_A × r_A − v_B − ω_B × r_B at contact points.
+
+    Args:
+        vel, angvel: padded (n + 1, ...) body velocities (see :func:`pad`).
+        body_a, body_b: (C,) body rows of each contact.
+        arm_a, arm_b: (C, dim) contact point minus each body's centre of mass.
+
+    Returns:
+        (C, dim) relative velocity of A's material point with respect to B's.
+    """
+    return (vel[body_a] + spin_cross(model, angvel[body_a], arm_a)
+            - vel[body_b] - spin_cross(model, angvel[body_b], arm_b))
+
+
 def moment(model: Model, arm, force):
     """r × f: (..., 3) in 3D, (...) in 2D."""
     return cross(arm, force) if model.dim == 3 else cross2(arm, force)

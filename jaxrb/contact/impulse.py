@@ -62,7 +62,8 @@ import jax.numpy as jnp
 from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
 from jaxrb.contact.common import (apply_inverse_inertia, contact_counts, effective_mass, moment,
-                                  pad, spin_cross, tangent_basis, world_inverse_inertia)
+                                  pad, relative_velocity, spin_cross, tangent_basis,
+                                  world_inverse_inertia)
 from jaxrb.math import rotate2, safe_norm
 from jaxrb.types import Array, Model, Params, State
 
@@ -177,9 +178,8 @@ def current_separation(model: Model, prep: Prepared, state: State):
 
 
 def _relative_velocity(model, prep, vel, angvel, rows=slice(None)):
-    a, b = prep.body_a[rows], prep.body_b[rows]
-    return (vel[a] + spin_cross(model, angvel[a], prep.arm_a[rows])
-            - vel[b] - spin_cross(model, angvel[b], prep.arm_b[rows]))
+    return relative_velocity(model, vel, angvel, prep.body_a[rows], prep.body_b[rows],
+                             prep.arm_a[rows], prep.arm_b[rows])
 
 
 def normal_velocity(model: Model, prep: Prepared, state: State):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxrb.contact.common import (contact_counts, effective_mass, moment, pad, spin_cross,
+from jaxrb.contact.common import (contact_counts, effective_mass, moment, pad, relative_velocity,
                                   world_inverse_inertia)
 from jaxrb.math import safe_norm, safe_normalize
 from jaxrb.types import Model, Params, State
@@ -59,11 +59,10 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     a, b = contacts.body_a, contacts.body_b
     arm_a, arm_b = contacts.point - pos[a], contacts.point - pos[b]
 
-    def relative_velocity(source):
-        vel, angvel = pad(source.vel), pad(source.angvel)
-        return vel[a] + spin_cross(model, angvel[a], arm_a) - vel[b] - spin_cross(model, angvel[b], arm_b)
+    def contact_velocity(source):
+        return relative_velocity(model, pad(source.vel), pad(source.angvel), a, b, arm_a, arm_b)
 
-    rel_vel = relative_velocity(state)
+    rel_vel = contact_velocity(state)
     normal = contacts.normal
     vn = jnp.sum(rel_vel * normal, axis=-1)
     penetration = -contacts.dist
@@ -84,7 +83,7 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     normal_force = jnp.maximum(params.penalty_stiffness * activation - damping * vn * gate, 0.0)
     normal_force = jnp.where(contacts.active, normal_force, 0.0)
 
-    predicted_vel = relative_velocity(predicted)
+    predicted_vel = contact_velocity(predicted)
     slip = predicted_vel - jnp.sum(predicted_vel * normal, axis=-1, keepdims=True) * normal
     speed = safe_norm(slip)
     inv_inertia = world_inverse_inertia(model, params, state)
