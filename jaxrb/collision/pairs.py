@@ -199,6 +199,19 @@ def shape_poses(model: Model, params: Params, state: State):
     return origin, rotation
 
 
+def round_sides(model: Model):
+    """Whether side A and side B of each contact row is a sphere or circle.
+
+    Returns two (C,) numpy bool arrays in :func:`detect`'s row order (static:
+    they follow from the pair table).
+    """
+    sides = ([], [])
+    for group in model.pair_groups:
+        for side, kind in zip(sides, group.kind.split("_")):
+            side.append(np.full(group.capacity * group.slots, kind == "sphere"))
+    return tuple(np.concatenate(side) if side else np.zeros(0, dtype=bool) for side in sides)
+
+
 def _stack_geometry(model, bodies, dtype):
     arrays = [geometry(model.shapes[b], model.dim)[1] for b in bodies]
     return tuple(jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0])))

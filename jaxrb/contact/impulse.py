@@ -60,6 +60,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
+from jaxrb.collision.pairs import round_sides
 from jaxrb._struct import pytree_dataclass
 from jaxrb.contact.common import (apply_inverse_inertia, contact_counts, effective_mass, moment,
                                   pad, relative_velocity, spin_cross, tangent_basis,
@@ -76,8 +77,11 @@ class Prepared:
         body_a, body_b: (C,) body rows (n is the static row).
         normal: (C, dim); tangents: tuple of (C, dim) unit tangents (2 in 3D, 1 in 2D).
         arm_a, arm_b: (C, dim) world contact point minus each centre of mass.
-        anchor_a, anchor_b: (C, dim) the arms in each body's frame.
-        start_a, start_b: (C, dim) each body's centre of mass at the step start.
+        anchor_a, anchor_b: (C, dim) body-frame point that carries each side's
+            contact: the contact point itself, or, for a sphere or circle, its
+            centre (rotating a ball leaves its surface in place, so a rolling
+            ball's contact must not turn with it and seem to lift off).
+        start_a, start_b: (C, dim) the anchors' world positions at the step start.
         separation: (C,) separation at the step start.
         normal_mass: (C,); tangent_mass: tuple of (C,).
         friction, restitution: (C,).
@@ -154,12 +158,16 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     masses = lambda direction: effective_mass(
         model, split_mass[a], split_mass[b], split_inertia[a], split_inertia[b], arm_a, arm_b, direction)
     rotations = _padded_rotations(model, state)
+    round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
+    centre = -pad(params.com_offset)  # shape centre from the centre of mass, body frame
+    anchor_a = jnp.where(round_a, centre[a], _to_body(model, rotations, a, arm_a))
+    anchor_b = jnp.where(round_b, centre[b], _to_body(model, rotations, b, arm_b))
     return Prepared(
         body_a=contacts.body_a, body_b=contacts.body_b, normal=normal, tangents=tangents,
         arm_a=arm_a, arm_b=arm_b,
-        anchor_a=_to_body(model, rotations, contacts.body_a, arm_a),
-        anchor_b=_to_body(model, rotations, contacts.body_b, arm_b),
-        start_a=pos[contacts.body_a], start_b=pos[contacts.body_b],
+        anchor_a=anchor_a, anchor_b=anchor_b,
+        start_a=pos[a] + _to_world(model, rotations, a, anchor_a),
+        start_b=pos[b] + _to_world(model, rotations, b, anchor_b),
         separation=contacts.dist, normal_mass=masses(normal),
         tangent_mass=tuple(masses(t) for t in tangents),
         friction=contacts.friction, restitution=contacts.restitution,
@@ -172,8 +180,8 @@ def current_separation(model: Model, prep: Prepared, state: State):
     pos = pad(state.pos)
     rotations = _padded_rotations(model, state)
     world_arm = lambda body, anchor: _to_world(model, rotations, body, anchor)
-    moved_a = pos[prep.body_a] + world_arm(prep.body_a, prep.anchor_a) - prep.start_a - prep.arm_a
-    moved_b = pos[prep.body_b] + world_arm(prep.body_b, prep.anchor_b) - prep.start_b - prep.arm_b
+    moved_a = pos[prep.body_a] + world_arm(prep.body_a, prep.anchor_a) - prep.start_a
+    moved_b = pos[prep.body_b] + world_arm(prep.body_b, prep.anchor_b) - prep.start_b
     return prep.separation + jnp.sum(prep.normal * (moved_a - moved_b), axis=-1)
 
 
