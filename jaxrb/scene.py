@@ -26,8 +26,8 @@ import numpy as np
 
 from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
 from jaxrb.collision.pairs import build_pair_groups
-from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, SOLVERS, Model,
-                         Params, State, check_option)
+from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
+                         SOLVERS, Model, Params, State, check_option)
 
 DEFAULT_DENSITY = 1000.0
 ALL_BITS = 0xFFFFFFFF
@@ -278,7 +278,7 @@ class Scene:
               max_push_velocity: float = 3.0, penalty_stiffness: Optional[float] = None,
               penalty_damping: Optional[float] = None, penalty_frequency: Optional[float] = None,
               penalty_damping_ratio: Optional[float] = None, penalty_width: Optional[float] = None,
-              friction_velocity: float = 1e-4):
+              penalty_friction: str = "spring", friction_velocity: float = 1e-4):
         """Validate the options and return ``(model, params, state)``.
 
         Args:
@@ -320,6 +320,10 @@ class Scene:
                 restitution, ζ = −ln e / √(π² + ln² e).
             penalty_width: softplus width (m); giving it turns on the smooth
                 activation.
+            penalty_friction: ``"spring"`` (stick–slip, holds a load below the
+                friction angle) or ``"regularized"`` (smooth Coulomb with
+                ``friction_velocity``; creeps under a steady load); see
+                :mod:`jaxrb.contact.penalty`.
         """
         check = _Fields("scene.build")
         if not self._bodies:
@@ -332,6 +336,7 @@ class Scene:
         orientation = check_option("orientation", "exp_map" if orientation is None else orientation,
                                    ORIENTATIONS)
         check_option("solver", solver, SOLVERS)
+        check_option("penalty_friction", penalty_friction, PENALTY_FRICTIONS)
         for field, value, low in (("substeps", substeps, 1), ("iterations", iterations, 1),
                                    ("relax_iterations", relax_iterations, 0),
                                    ("broadphase_capacity", broadphase_capacity, 1)):
@@ -368,6 +373,7 @@ class Scene:
             pair_groups=pair_groups, solver=solver, iterations=int(iterations),
             relax_iterations=int(relax_iterations), penalty_smooth=penalty_width is not None,
             penalty_damping_from_restitution=penalty_damping is None and penalty_damping_ratio is None,
+            penalty_friction=penalty_friction,
             skipped_pairs=skipped)
         substep = dt / int(substeps)
         mean_mass = float(np.mean([b.mass for b in bodies]))

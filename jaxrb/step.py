@@ -63,14 +63,21 @@ def _penalty_substeps(model: Model):
 
     def run(state, params, force, torque, h):
         overflow = jnp.zeros((), dtype=bool)  # this step's substeps only, as State documents
+        impulse_now, key = state.contact_impulse, state.contact_key
         for _ in range(model.substeps):
             contacts = detect(model, params, state)
             overflow = overflow | contacts.overflow
+            # State keeps impulses (force x h); the friction spring of a contact
+            # that persists (same pair and slot) carries over.
+            persists = (key == contacts.key)[:, None]
+            held = jnp.where(persists, impulse_now[:, 1:], 0.0) / h
             predicted = velocity_phase(model, params, state, force, torque, h)
-            contact_force, contact_torque = penalty_wrench(model, params, state, contacts, h, predicted)
+            contact_force, contact_torque, normal_force, held = penalty_wrench(
+                model, params, state, contacts, h, predicted, held)
             state = velocity_phase(model, params, state, force + contact_force, torque + contact_torque, h)
             state = position_phase(model, params, state, h)
-        return state.replace(overflow=overflow)
+            impulse_now, key = jnp.concatenate([normal_force[:, None], held], axis=-1) * h, contacts.key
+        return state.replace(contact_impulse=impulse_now, contact_key=key, overflow=overflow)
 
     return run
 

@@ -20,6 +20,7 @@ INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4")
 ORIENTATIONS = ("first_order", "exp_map")
 CONTACT_MODELS = ("none", "penalty", "impulse")
 SOLVERS = ("sequential", "jacobi")
+PENALTY_FRICTIONS = ("spring", "regularized")
 BROADPHASES = ("all_pairs", "spheres")
 
 # Contact status codes (ContactSet.status), from v_rel = n·(v_A − v_B) at the point.
@@ -61,6 +62,8 @@ class Model:
         penalty_smooth: penalty normal force uses the softplus activation.
         penalty_damping_from_restitution: penalty damping is derived per
             contact from restitution instead of ``Params.penalty_damping``.
+        penalty_friction: penalty friction law, one of :data:`PENALTY_FRICTIONS`
+            (see :mod:`jaxrb.contact.penalty`).
         skipped_pairs: pair kinds present in the scene that no kernel handles.
     """
 
@@ -80,6 +83,7 @@ class Model:
     relax_iterations: int = 1
     penalty_smooth: bool = False
     penalty_damping_from_restitution: bool = True
+    penalty_friction: str = "spring"
     skipped_pairs: tuple = ()
 
     @property
@@ -104,7 +108,8 @@ class Model:
             kinds = ", ".join(f"{g.kind} x{g.capacity}" for g in self.pair_groups)
             detail = (f"{self.solver}, {self.iterations} iterations + {self.relax_iterations} relax"
                       if self.contact == "impulse" else
-                      "smooth activation" if self.penalty_smooth else "hard activation")
+                      f"{'smooth' if self.penalty_smooth else 'hard'} activation, "
+                      f"{self.penalty_friction} friction")
             stages.insert(0, f"collision ({kinds}; {self.num_contacts} contact slots)")
             stages.append(f"contact {self.contact} ({detail})")
         if self.skipped_pairs:
@@ -144,8 +149,8 @@ class Params:
         penalty_damping: () penalty damper per contact point (N·s/m), used when
             the Model does not derive it from restitution.
         penalty_width: () softplus width (m) of the smooth penalty activation.
-        friction_velocity: () regularisation velocity (m/s) of penalty friction:
-            μF_n·v_t/√(|v_t|² + v_reg²).
+        friction_velocity: () regularisation velocity (m/s) of the
+            ``"regularized"`` penalty friction: μF_n·v_t/√(|v_t|² + v_reg²).
     """
 
     mass: Array
@@ -183,8 +188,10 @@ class State:
         quat: (n, 4) unit quaternions (w, x, y, z) body-to-world in 3D; ``None`` in 2D.
         angle: (n,) body-to-world rotation angle in 2D; ``None`` in 3D.
         time: () simulated time.
-        contact_impulse: (C, 1 + dim) impulse solver warm start per contact
-            slot: the normal impulse, then the world friction impulse vector.
+        contact_impulse: (C, 1 + dim) per contact slot, the normal impulse then
+            the world friction impulse vector: the impulse solver's
+            accumulated impulses (its warm start), or, for penalty contact, the
+            last substep's normal force and friction spring force times h.
         contact_key: (C,) int32 which pair and slot each row belongs to, so a
             warm start is used only by the same contact.
         overflow: () bool, True if a broadphase had more overlapping pairs than

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb.types import CONTACT_MODELS, INTEGRATORS, ORIENTATIONS
+from jaxrb.types import CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS, SOLVERS
 
 NAN, INF = float("nan"), float("inf")
 
@@ -336,7 +336,8 @@ def test_bad_scene_dim_and_gravity():
 
 
 @pytest.mark.parametrize("option, valid", [("integrator", INTEGRATORS), ("orientation", ORIENTATIONS),
-                                           ("contact", CONTACT_MODELS)])
+                                           ("contact", CONTACT_MODELS), ("solver", SOLVERS),
+                                           ("penalty_friction", PENALTY_FRICTIONS)])
 def test_unknown_option_lists_valid_ones(option, valid):
     with pytest.raises(ValueError) as info:
         scene3().build(dt=0.01, **{option: "leapfrog"})

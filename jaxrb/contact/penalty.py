@@ -1,4 +1,4 @@
-"""Penalty contact: spring-damper normal forces and regularised Coulomb friction.
+"""Penalty contact: spring-damper normal forces and Coulomb friction.
 
 For each active contact with penetration p = −dist and normal approach speed
 v_n (v_rel = n·(v_A − v_B)):
@@ -10,15 +10,27 @@ a(p) = w·softplus(p/w), g = sigmoid(p/w) of width ``penalty_width`` w. The
 damper c is ``Params.penalty_damping``, or, by default, derived per contact
 from its restitution e so that a linear spring-damper bounces with e:
 ζ = −ln e / √(π² + ln² e), c = 2ζ√(k m) with m the pair's reduced mass.
+Either way c is capped at m_c/h, m_c the contact's effective mass along n
+(rotation included) shared among the body's contacts: a stronger explicit
+damper overshoots (a box's corners have m_c ≈ m/16 and would rock for ever).
 
-Friction opposes the tangential slip v_t with μF_n·v_t / √(|v_t|² + v_reg²)
-(``friction_velocity`` = v_reg, smooth through zero slip), and is capped at
-the force that would stop the slip within one substep (the tangential
-effective mass over h, shared among the body's contacts). The slip is the one
-*predicted* after this substep's other loads, so within the cone the cap
-cancels it exactly: static friction without any stored anchor. Without the
-cap a small v_reg makes friction too stiff for an explicit force; with it a
-box on a slope below the friction angle does not creep.
+Friction (``Model.penalty_friction``) acts on the tangential slip v_t
+*predicted* after this substep's other loads:
+
+* ``"spring"`` (default), stick–slip: each contact carries a tangential spring
+  whose elastic force F_e (kept in ``State.contact_impulse`` as F_e·h and
+  matched by ``contact_key``) grows by −k·h·v_t per substep; the friction force
+  is F_e − c·v_t clamped to the Coulomb disc |F| ≤ μF_n, and where the clamp
+  bites the anchor slides so |F_e| ≤ μF_n. Under a steady load below the
+  friction angle the spring takes the load and the slip vanishes (integral
+  action), so a box on a slope does not creep. The spring has the normal
+  stiffness k and damper c; the stick displacement before sliding is μF_n/k.
+* ``"regularized"``: smooth Coulomb −μF_n·v_t / √(|v_t|² + v_reg²) with
+  v_reg = ``friction_velocity``, capped at the force that stops the slip within
+  one substep (the tangential effective mass over h, shared among the body's
+  contacts; without the cap a small v_reg is too stiff for an explicit force).
+  Smooth in every input, which suits gradients, but memoryless: under a steady
+  load it creeps (7 mm/s for a box on a 0.25 rad slope at h = 1 ms).
 """
 
 from __future__ import annotations
@@ -28,7 +40,7 @@ import jax.numpy as jnp
 
 from jaxrb.contact.common import (contact_counts, effective_mass, moment, pad, relative_velocity,
                                   world_inverse_inertia)
-from jaxrb.math import safe_norm, safe_normalize
+from jaxrb.math import safe_div, safe_norm, safe_normalize
 from jaxrb.types import Model, Params, State
 
 
@@ -44,15 +56,23 @@ def damping_ratio_from_restitution(restitution):
     return -log_e / jnp.sqrt(jnp.pi ** 2 + log_e ** 2)
 
 
-def penalty_wrench(model: Model, params: Params, state: State, contacts, h, predicted: State):
-    """Contact force (n, dim) and torque ((n, 3) or (n,)) on every body.
+def penalty_wrench(model: Model, params: Params, state: State, contacts, h, predicted: State,
+                   held_friction):
+    """Contact force and torque on every body, and each contact's friction spring force.
 
     Args:
         contacts: a ContactSet from :func:`jaxrb.collision.pairs.detect` on ``state``.
-        h: substep length (caps friction, see the module docs).
+        h: substep length (s).
         predicted: ``state`` after this substep's velocity update without
-            contact. Friction acts on its slip, so a steady load (a box on a
-            slope) is cancelled exactly instead of leaving an O(g·h) creep.
+            contact; friction acts on its slip (see the module docs).
+        held_friction: (C, dim) elastic friction force each contact carried
+            from the last substep (zero for new contacts); unused by the
+            ``"regularized"`` friction model.
+
+    Returns:
+        ``(force, torque, normal_force, held_friction)``: force (n, dim) and
+        torque ((n, 3) or (n,)) on every body, the normal force (C,) and the
+        elastic friction force (C, dim) to carry to the next substep.
     """
     num = model.num_bodies
     pos = pad(state.pos)
@@ -61,6 +81,9 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
 
     def contact_velocity(source):
         return relative_velocity(model, pad(source.vel), pad(source.angvel), a, b, arm_a, arm_b)
+
+    def tangential(vector):
+        return vector - jnp.sum(vector * normal, axis=-1, keepdims=True) * normal
 
     rel_vel = contact_velocity(state)
     normal = contacts.normal
@@ -74,30 +97,50 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         activation = jnp.maximum(penetration, 0.0)
         gate = (penetration > 0.0).astype(penetration.dtype)
     inv_mass = pad(1.0 / params.mass)
+    inv_inertia = world_inverse_inertia(model, params, state)
+    sharing = jnp.maximum(contact_counts(model, contacts), 1.0)
+    sharing = jnp.maximum(sharing[a], jnp.where(b == num, 1.0, sharing[b]))
+
+    def contact_mass(direction):
+        """Effective mass along ``direction`` (C, dim), shared among the body's contacts."""
+        return effective_mass(model, inv_mass[a], inv_mass[b], inv_inertia[a], inv_inertia[b],
+                              arm_a, arm_b, direction) / sharing
+
     if model.penalty_damping_from_restitution:
         reduced_mass = 1.0 / (inv_mass[a] + inv_mass[b])
         damping = (2.0 * damping_ratio_from_restitution(contacts.restitution)
                    * jnp.sqrt(params.penalty_stiffness * reduced_mass))
     else:
         damping = params.penalty_damping
+    damping = jnp.minimum(damping, contact_mass(normal) / h)
     normal_force = jnp.maximum(params.penalty_stiffness * activation - damping * vn * gate, 0.0)
     normal_force = jnp.where(contacts.active, normal_force, 0.0)
 
-    predicted_vel = contact_velocity(predicted)
-    slip = predicted_vel - jnp.sum(predicted_vel * normal, axis=-1, keepdims=True) * normal
-    speed = safe_norm(slip)
-    inv_inertia = world_inverse_inertia(model, params, state)
-    direction = safe_normalize(slip)
-    tangent_mass = effective_mass(model, inv_mass[a], inv_mass[b], inv_inertia[a], inv_inertia[b],
-                                  arm_a, arm_b, direction)
-    sharing = jnp.maximum(contact_counts(model, contacts), 1.0)
-    stop_force = tangent_mass / (h * jnp.maximum(sharing[a], jnp.where(b == num, 1.0, sharing[b])))
-    coulomb = contacts.friction * normal_force / jnp.sqrt(speed ** 2 + params.friction_velocity ** 2)
-    friction_force = -jnp.minimum(coulomb, stop_force)[:, None] * slip
+    slip = tangential(contact_velocity(predicted))
+    limit = (contacts.friction * normal_force)[:, None]
+    if model.penalty_friction == "spring":
+        # The spring stretches with the slip the positions moved with (so it is
+        # the displacement since sticking, and at rest exactly no slip), the
+        # damper acts on the predicted slip (so a steady load is met at once).
+        elastic = tangential(held_friction) - params.penalty_stiffness * h * tangential(rel_vel)
+        trial = elastic - (damping * gate)[:, None] * slip
+        friction_force = trial * _disc_scale(trial, limit)
+        held_friction = jnp.where(contacts.active[:, None], elastic * _disc_scale(elastic, limit), 0.0)
+    else:
+        stop_force = contact_mass(safe_normalize(slip)) / h
+        coulomb = limit[:, 0] / jnp.sqrt(safe_norm(slip) ** 2 + params.friction_velocity ** 2)
+        friction_force = -jnp.minimum(coulomb, stop_force)[:, None] * slip
+        held_friction = friction_force
 
     force = normal_force[:, None] * normal + friction_force
     total = num + 1
     body_force = jax.ops.segment_sum(force, a, total) - jax.ops.segment_sum(force, b, total)
     body_torque = (jax.ops.segment_sum(moment(model, arm_a, force), a, total)
                    - jax.ops.segment_sum(moment(model, arm_b, force), b, total))
-    return body_force[:num], body_torque[:num]
+    return body_force[:num], body_torque[:num], normal_force, held_friction
+
+
+def _disc_scale(vector, limit):
+    """(C, 1) factor that brings each (C, dim) ``vector`` into the disc |v| <= ``limit`` (C, 1)."""
+    length = safe_norm(vector, keepdims=True)
+    return jnp.where(length > limit, safe_div(limit, length), 1.0)
