@@ -9,9 +9,10 @@ Scenes (the settings of ``tests/test_contact.py`` and ``tests/test_stacks.py``):
 * **drop**: box (half 0.1 m) released with its centre at 0.5 m onto a plane,
   impulse dt = 1/60 s, 4 substeps; also its resting height error |z − 0.1 m|
   after 1 s (batch 1, float32).
-* **stack3d**: 10 boxes in a 3D column, impulse only, dt = 1/60 s, 4 substeps.
-* **pyramid2d**: 55-box 2D pyramid (10 rows), impulse only, dt = 1/60 s,
-  4 substeps.
+* **stack3d**: 10 boxes in a 3D column (impulse dt = 1/60 s, 4 substeps;
+  penalty dt = 1e-3 s).
+* **pyramid2d**: 55-box 2D pyramid, 10 rows (impulse dt = 1/60 s,
+  4 substeps; penalty dt = 1e-3 s).
 
 Everything runs in float32. ``num_steps`` steps are scanned inside one jit
 (final state only). Batch 1 is the step as written; larger batches are
@@ -93,8 +94,9 @@ SCENES = {
               {"impulse": IMPULSE, "penalty": PENALTY}, "large"),
     "drop": (drop_scene, f"box half 0.1 dropped from z={DROP_CENTRE} m",
              {"impulse": IMPULSE}, "large"),
-    "stack3d": (stack3d_scene, "10-box 3D column", {"impulse": IMPULSE}, "small"),
-    "pyramid2d": (pyramid2d_scene, "55-box 2D pyramid", {"impulse": IMPULSE}, "small"),
+    "stack3d": (stack3d_scene, "10-box 3D column", {"impulse": IMPULSE, "penalty": PENALTY}, "small"),
+    "pyramid2d": (pyramid2d_scene, "55-box 2D pyramid", {"impulse": IMPULSE, "penalty": PENALTY},
+                  "small"),
 }
 
 

@@ -49,9 +49,11 @@ Iteration schemes (``Model.solver``):
   k-fold and left a box that slid to a stop rocking at 0.2 rad/s. Known
   limitation: each contact's soft spring acts on a split (k times lighter)
   effective mass, so stacks sink about k times deeper than with
-  ``sequential`` (a 10-box stack: ~1 cm at the bottom joint, no sideways
-  drift); scaling the compliance back made stacks bounce. ``sequential`` is
-  the default.
+  ``sequential``. Measured on the 10-box 3D stack at dt = 1/60 s: 13.6 mm at
+  the bottom joint with 4 substeps, 3.4 mm with 8 (tested: it stands 10 s);
+  the 2D 55-box pyramid with 8 substeps 6.1 mm; the 20-box 2D column still
+  22 mm with 16. Scaling the impulse leak or the stiffness back by k made
+  stacks bounce. ``sequential`` is the default.
 """
 
 from __future__ import annotations
