@@ -298,7 +298,20 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
         lam = lam.at[rows].set(jnp.concatenate([normal[:, None], friction], axis=-1))
         return vel, angvel, lam
 
-    return jax.lax.fori_loop(0, prep.normal.shape[0], one_contact, (vel, angvel, lam))
+    return jax.lax.fori_loop(0, prep.normal.shape[0], _skip_inactive(prep, one_contact), (vel, angvel, lam))
+
+
+def _skip_inactive(prep: Prepared, update):
+    """Wrap a per-row loop body so inactive rows cost a branch, not a solve.
+
+    Most rows of an all-pairs table are pairs that are not touching (a 10-box
+    stack has 440 rows, 80 of them active). Under vmap the branch becomes a
+    select and both sides run, so batched worlds gain nothing and lose nothing.
+    """
+    def body(index, carry):
+        return jax.lax.cond(prep.active[index], lambda c: update(index, c), lambda c: c, carry)
+
+    return body
 
 
 def soft_parameters(params: Params, h):
@@ -335,4 +348,5 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
     if model.solver == "jacobi":
         return update(vel, angvel, lam, slice(None))
     return jax.lax.fori_loop(0, prep.normal.shape[0],
-                             lambda i, c: update(*c, jnp.reshape(i, (1,))), (vel, angvel, lam))
+                             _skip_inactive(prep, lambda i, c: update(*c, jnp.reshape(i, (1,)))),
+                             (vel, angvel, lam))
