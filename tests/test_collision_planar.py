@@ -66,19 +66,17 @@ def test_box_resting_on_equal_box(jitted, swap):
     np.testing.assert_allclose(point, [[-0.5, 0.495], [0.5, 0.495]], atol=1e-12)
 
 
-def test_box_on_wider_box_gives_narrow_box_corners(jitted):
-    c = jitted["polygon_polygon"](box(0.3, 0.2), box(2.0, 0.5), pose(0.7, 0.68), pose(0.0, 0.0))
-    dist, point, normal, valid = sorted_by_x(c)
-    assert valid.all()
-    np.testing.assert_allclose(dist, [-0.02, -0.02], atol=1e-12)
-    np.testing.assert_allclose(point, [[0.4, 0.49], [1.0, 0.49]], atol=1e-12)
-    np.testing.assert_allclose(normal, [[0.0, 1.0]] * 2, atol=1e-12)
+@pytest.mark.parametrize("top, bottom, top_x, bottom_x, point_y", [
+    ((0.3, 0.2), (2.0, 0.5), 0.7, 0.0, 0.49),
     # The wide box on top of the narrow one: same contact, B's top face as reference.
-    c = jitted["polygon_polygon"](box(2.0, 0.5), box(0.3, 0.2), pose(0.0, 0.68), pose(0.7, 0.0))
+    ((2.0, 0.5), (0.3, 0.2), 0.0, 0.7, 0.19),
+])
+def test_box_on_wider_box_gives_narrow_box_corners(jitted, top, bottom, top_x, bottom_x, point_y):
+    c = jitted["polygon_polygon"](box(*top), box(*bottom), pose(top_x, 0.68), pose(bottom_x, 0.0))
     dist, point, normal, valid = sorted_by_x(c)
     assert valid.all()
     np.testing.assert_allclose(dist, [-0.02, -0.02], atol=1e-12)
-    np.testing.assert_allclose(point, [[0.4, 0.19], [1.0, 0.19]], atol=1e-12)
+    np.testing.assert_allclose(point, [[0.4, point_y], [1.0, point_y]], atol=1e-12)
     np.testing.assert_allclose(normal, [[0.0, 1.0]] * 2, atol=1e-12)
 
 
