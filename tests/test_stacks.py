@@ -85,3 +85,9 @@ def test_pyramid_of_ten_rows_2d(build):
             top = scene.add_body(rb.Box((HALF, HALF)), mass=1.0, pos=(x, HALF + 2 * HALF * row), friction=0.5)
     assert scene.num_bodies == 55
     check_standing(*run_stack(scene, **build), top=top)
+
+
+def test_standing_check_fails_on_a_stack_that_falls():
+    """The criteria can fail: at 5 Hz soft contacts (a twelfth of the default) the stack sinks and topples."""
+    with pytest.raises(AssertionError):
+        check_standing(*run_stack(column(3, 10), substeps=4, contact_hertz=5.0), top=9)
