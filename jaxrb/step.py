@@ -10,7 +10,7 @@ import jax.numpy as jnp
 
 from jaxrb.collision.pairs import detect
 from jaxrb.contact import impulse
-from jaxrb.contact.common import pad
+from jaxrb.contact.common import carried_impulses, pad
 from jaxrb.contact.penalty import penalty_wrench
 from jaxrb.dynamics import net_wrench
 from jaxrb.integrators import INTEGRATORS, PHASES
@@ -63,21 +63,20 @@ def _penalty_substeps(model: Model):
 
     def run(state, params, force, torque, h):
         overflow = jnp.zeros((), dtype=bool)  # this step's substeps only, as State documents
-        impulse_now, key = state.contact_impulse, state.contact_key
         for _ in range(model.substeps):
             contacts = detect(model, params, state)
             overflow = overflow | contacts.overflow
-            # State keeps impulses (force x h); the friction spring of a contact
-            # that persists (same pair and slot) carries over.
-            persists = (key == contacts.key)[:, None]
-            held = jnp.where(persists, impulse_now[:, 1:], 0.0) / h
+            # State keeps impulses (force x h): the friction spring of a contact
+            # that persists carries over.
+            held = carried_impulses(state, contacts)[:, 1:] / h
             predicted = velocity_phase(model, params, state, force, torque, h)
             contact_force, contact_torque, normal_force, held = penalty_wrench(
                 model, params, state, contacts, h, predicted, held)
             state = velocity_phase(model, params, state, force + contact_force, torque + contact_torque, h)
             state = position_phase(model, params, state, h)
-            impulse_now, key = jnp.concatenate([normal_force[:, None], held], axis=-1) * h, contacts.key
-        return state.replace(contact_impulse=impulse_now, contact_key=key, overflow=overflow)
+            state = state.replace(contact_impulse=jnp.concatenate([normal_force[:, None], held], axis=-1) * h,
+                                  contact_key=contacts.key)
+        return state.replace(overflow=overflow)
 
     return run
 
@@ -93,7 +92,7 @@ def _impulse_substeps(model: Model):
     def run(state, params, force, torque, h):
         contacts = detect(model, params, state)
         prep = impulse.prepare(model, params, state, contacts)
-        lam = impulse.warm_start_impulses(model, state, contacts, prep)
+        lam = carried_impulses(state, contacts)  # warm start
         soft = impulse.soft_parameters(params, h)
 
         def apply(state, impulses):

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
 from jaxrb.dynamics import inverse_inertia
-from jaxrb.math import cross, cross2, cross_scalar2, matvec3
+from jaxrb.math import cross, cross2, cross_scalar2, matvec3, safe_div, safe_norm
 from jaxrb.types import Model, Params, State
 
 
@@ -86,3 +86,23 @@ def contact_counts(model: Model, contacts):
     num = model.num_bodies + 1
     return (jax.ops.segment_sum(active, contacts.body_a, num)
             + jax.ops.segment_sum(active, contacts.body_b, num))
+
+
+def carried_impulses(state: State, contacts):
+    """The impulses (C, 1 + dim) in ``state`` of the contacts that persist, 0 for the rest.
+
+    A row carries over when its ``contact_key`` (pair and slot) is the same and
+    it is active; its friction part is projected onto the new tangent plane.
+    """
+    same = (state.contact_key == contacts.key) & contacts.active
+    previous = jnp.where(same[:, None], state.contact_impulse, 0.0)
+    friction = previous[:, 1:]
+    friction = friction - jnp.sum(friction * contacts.normal, axis=-1, keepdims=True) * contacts.normal
+    return jnp.concatenate([previous[:, :1], friction], axis=-1)
+
+
+def clamp_to_disc(vector, limit):
+    """Each (C, dim) friction vector scaled down to length <= ``limit`` (C,): the Coulomb cone."""
+    length = safe_norm(vector, keepdims=True)
+    limit = limit[:, None]
+    return vector * jnp.where(length > limit, safe_div(limit, length), 1.0)

@@ -62,12 +62,12 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
-from jaxrb.collision.pairs import round_sides
 from jaxrb._struct import pytree_dataclass
-from jaxrb.contact.common import (apply_inverse_inertia, contact_counts, effective_mass, moment,
-                                  pad, relative_velocity, spin_cross, tangent_basis,
+from jaxrb.collision.pairs import round_sides
+from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc, contact_counts, effective_mass,
+                                  moment, pad, relative_velocity, spin_cross, tangent_basis,
                                   world_inverse_inertia)
-from jaxrb.math import rotate2, safe_norm
+from jaxrb.math import rotate2
 from jaxrb.types import Array, Model, Params, State
 
 
@@ -259,10 +259,8 @@ def _friction_update(model, prep, rel_vel, lam, normal_impulse, rows):
         delta = -(mass[rows] * vt)[:, None] * tangent[rows]
         friction = friction + delta
         rel_vel = rel_vel + _local_velocity_change(model, prep, delta, rows)
-    limit = prep.friction[rows] * normal_impulse
-    size = safe_norm(friction)
-    scale = jnp.where(size > limit, limit / jnp.where(size > 0.0, size, 1.0), 1.0)
-    return jnp.where(prep.active[rows][:, None], friction * scale[:, None], 0.0)
+    friction = clamp_to_disc(friction, prep.friction[rows] * normal_impulse)
+    return jnp.where(prep.active[rows][:, None], friction, 0.0)
 
 
 def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, soft):
@@ -322,15 +320,6 @@ def soft_parameters(params: Params, h):
     a2 = h * omega * a1
     a3 = 1.0 / (1.0 + a2)
     return omega / a1, a2 * a3, a3, params.max_push_velocity
-
-
-def warm_start_impulses(model: Model, state: State, contacts, prep: Prepared):
-    """Previous accumulated impulses for contacts that persist, projected on the new frame."""
-    same = (state.contact_key == contacts.key) & contacts.active
-    previous = jnp.where(same[:, None], state.contact_impulse, 0.0)
-    friction = previous[:, 1:]
-    friction = friction - jnp.sum(friction * prep.normal, axis=-1, keepdims=True) * prep.normal
-    return jnp.concatenate([previous[:, :1], friction], axis=-1)
 
 
 def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):

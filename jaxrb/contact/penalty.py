@@ -46,9 +46,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxrb.contact.common import (contact_counts, effective_mass, moment, pad, relative_velocity,
-                                  world_inverse_inertia)
-from jaxrb.math import safe_div, safe_norm, safe_normalize
+from jaxrb.contact.common import (clamp_to_disc, contact_counts, effective_mass, moment, pad,
+                                  relative_velocity, world_inverse_inertia)
+from jaxrb.math import safe_norm, safe_normalize
 from jaxrb.types import Model, Params, State
 
 
@@ -74,8 +74,8 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         predicted: ``state`` after this substep's velocity update without
             contact; friction acts on its slip (see the module docs).
         held_friction: (C, dim) elastic friction force each contact carried
-            from the last substep (zero for new contacts); unused by the
-            ``"regularized"`` friction model.
+            from the last substep, in its tangent plane (zero for new
+            contacts); unused by the ``"regularized"`` friction model.
 
     Returns:
         ``(force, torque, normal_force, held_friction)``: force (n, dim) and
@@ -125,18 +125,17 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     normal_force = jnp.where(contacts.active, normal_force, 0.0)
 
     slip = tangential(contact_velocity(predicted))
-    limit = (contacts.friction * normal_force)[:, None]
+    limit = contacts.friction * normal_force
     if model.penalty_friction == "spring":
         # The spring stretches with the slip the positions moved with (so it is
         # the displacement since sticking, and at rest exactly no slip), the
         # damper acts on the predicted slip (so a steady load is met at once).
-        elastic = tangential(held_friction) - params.penalty_stiffness * h * tangential(rel_vel)
-        trial = elastic - (damping * gate)[:, None] * slip
-        friction_force = trial * _disc_scale(trial, limit)
-        held_friction = jnp.where(contacts.active[:, None], elastic * _disc_scale(elastic, limit), 0.0)
+        elastic = held_friction - params.penalty_stiffness * h * tangential(rel_vel)
+        friction_force = clamp_to_disc(elastic - (damping * gate)[:, None] * slip, limit)
+        held_friction = jnp.where(contacts.active[:, None], clamp_to_disc(elastic, limit), 0.0)
     else:
         stop_force = contact_mass(safe_normalize(slip)) / h
-        coulomb = limit[:, 0] / jnp.sqrt(safe_norm(slip) ** 2 + params.friction_velocity ** 2)
+        coulomb = limit / jnp.sqrt(safe_norm(slip) ** 2 + params.friction_velocity ** 2)
         friction_force = -jnp.minimum(coulomb, stop_force)[:, None] * slip
         held_friction = friction_force
 
@@ -147,8 +146,3 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
                    - jax.ops.segment_sum(moment(model, arm_b, force), b, total))
     return body_force[:num], body_torque[:num], normal_force, held_friction
 
-
-def _disc_scale(vector, limit):
-    """(C, 1) factor that brings each (C, dim) ``vector`` into the disc |v| <= ``limit`` (C, 1)."""
-    length = safe_norm(vector, keepdims=True)
-    return jnp.where(length > limit, safe_div(limit, length), 1.0)
