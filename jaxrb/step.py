@@ -27,7 +27,8 @@ def make_step(model: Model) -> Callable:
     for forces at points). Only the stages ``model`` needs are traced.
     """
     substeps = model.substeps
-    if model.contact == "none":
+    if model.contact == "none" or model.num_contacts == 0:
+        # Contact asked for but nothing can touch (no planes, all pairs filtered).
         run_substeps = _free_substeps(model)
     elif model.contact == "penalty":
         run_substeps = _penalty_substeps(model)

@@ -220,6 +220,19 @@ def test_pair_table_holds_only_the_kernels_the_scene_needs():
     assert free_model.contact == "none" and free_model.pair_groups == () and free_state.contact_impulse is None
 
 
+@pytest.mark.parametrize("contact", MODELS)
+def test_contact_model_with_nothing_to_touch_steps_as_free_bodies(contact):
+    scene = rb.Scene(dim=3)
+    scene.add_body(rb.Sphere(0.1), mass=1.0, vel=(1.0, 0.0, 0.0))
+    model, params, state = scene.build(contact=contact, **MODELS[contact])
+    assert model.num_contacts == 0
+    moved = rb.make_step(model)(state, params)
+    # Symplectic Euler over n substeps of h: z = −g h² n(n + 1)/2.
+    n = model.substeps
+    h = float(params.dt) / n
+    np.testing.assert_allclose(moved.pos[0], [n * h, 0.0, -G * h * h * n * (n + 1) / 2], rtol=1e-12)
+
+
 def test_collision_filter_removes_pairs():
     scene = rb.Scene(dim=3)
     scene.add_plane(collision_category=0b10)
