@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
+from jaxrb.bench.contact import pyramid2d_scene
 
 pytestmark = pytest.mark.slow
 HALF = 0.1  # 0.2 m boxes
@@ -25,8 +26,8 @@ SAVE_EVERY = 0.1  # s between saved states
 PENALTY = dict(contact="penalty", dt=1e-3)
 
 
-def run_stack(scene, substeps=1, **build):
-    build = dict(dict(dt=DT, substeps=substeps), **build)
+def run_stack(scene, **build):
+    build = {"dt": DT, **build}
     model, params, state = scene.build(**build)
     step = rb.make_step(model)
     every = int(round(SAVE_EVERY / build["dt"]))
@@ -76,15 +77,9 @@ def test_mass_ratio_hundred_to_one():
 
 @pytest.mark.parametrize("build", [dict(substeps=4), PENALTY], ids=["impulse", "penalty"])
 def test_pyramid_of_ten_rows_2d(build):
-    scene = rb.Scene(dim=2)
-    scene.add_plane(friction=0.5)
-    top = 0
-    for row in range(10):
-        for column_index in range(10 - row):
-            x = (column_index - (9 - row) / 2.0) * 2 * HALF * 1.05
-            top = scene.add_body(rb.Box((HALF, HALF)), mass=1.0, pos=(x, HALF + 2 * HALF * row), friction=0.5)
+    scene = pyramid2d_scene(rows=10)  # the benchmark's scene: 0.2 m boxes, 5 % gaps, μ = 0.5
     assert scene.num_bodies == 55
-    check_standing(*run_stack(scene, **build), top=top)
+    check_standing(*run_stack(scene, **build), top=54)  # bodies are added row by row
 
 
 def test_standing_check_fails_on_a_stack_that_falls():
