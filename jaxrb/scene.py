@@ -278,7 +278,8 @@ class Scene:
               max_push_velocity: float = 3.0, penalty_stiffness: Optional[float] = None,
               penalty_damping: Optional[float] = None, penalty_frequency: Optional[float] = None,
               penalty_damping_ratio: Optional[float] = None, penalty_width: Optional[float] = None,
-              penalty_friction: str = "spring", friction_velocity: float = 1e-4):
+              penalty_friction: str = "spring", friction_velocity: float = 1e-4,
+              impulse_smoothing: float = 0.0, time_of_impact: bool = False):
         """Validate the options and return ``(model, params, state)``.
 
         Args:
@@ -324,6 +325,13 @@ class Scene:
                 friction angle) or ``"regularized"`` (smooth Coulomb with
                 ``friction_velocity``; creeps under a steady load); see
                 :mod:`jaxrb.contact.penalty`.
+            impulse_smoothing: σ (m/s) of the impulse model's smooth normal
+                clamp (``Params.impulse_smoothing``); 0 is the exact clamp.
+            time_of_impact: impulse contact only: resolve fast impacts of
+                spheres, circles, capsules and point masses against planes and
+                of sphere (circle) pairs at their time inside the substep
+                instead of at its end (see :mod:`jaxrb.contact.toi`); pairs of
+                other kinds keep the discrete treatment.
         """
         check = _Fields("scene.build")
         if not self._bodies:
@@ -359,6 +367,8 @@ class Scene:
         elif not velocity_first:
             raise ValueError(f"scene.build: contact {contact!r} needs a velocity-first integrator "
                              f"('semi_implicit' or 'implicit_gyro'), got {integrator!r}")
+        if time_of_impact and contact != "impulse":
+            raise ValueError(f"scene.build: 'time_of_impact' needs contact 'impulse', got {contact!r}")
         dtype = jax.dtypes.canonicalize_dtype(jnp.float64 if dtype is None else dtype)
         if not jnp.issubdtype(dtype, jnp.floating):
             raise ValueError(f"scene.build: 'dtype' must be a floating dtype, got {dtype}")
@@ -373,7 +383,7 @@ class Scene:
             pair_groups=pair_groups, solver=solver, iterations=int(iterations),
             relax_iterations=int(relax_iterations), penalty_smooth=penalty_width is not None,
             penalty_damping_from_restitution=penalty_damping is None and penalty_damping_ratio is None,
-            penalty_friction=penalty_friction,
+            penalty_friction=penalty_friction, time_of_impact=bool(time_of_impact),
             skipped_pairs=skipped)
         substep = dt / int(substeps)
         mean_mass = float(np.mean([b.mass for b in bodies]))
@@ -397,7 +407,8 @@ class Scene:
             penalty_damping=check.scalar("penalty_damping", penalty_damping, low=0.0),
             penalty_width=check.scalar("penalty_width", 1e-3 if penalty_width is None else penalty_width,
                                        low=0.0, low_open=True),
-            friction_velocity=check.scalar("friction_velocity", friction_velocity, low=0.0, low_open=True))
+            friction_velocity=check.scalar("friction_velocity", friction_velocity, low=0.0, low_open=True),
+            impulse_smoothing=check.scalar("impulse_smoothing", impulse_smoothing, low=0.0))
 
         def stack(values):
             return jnp.asarray(np.stack([np.asarray(v, dtype=np.float64) for v in values]), dtype=dtype)

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb.collision.pairs import detect
-from jaxrb.contact import impulse
+from jaxrb.contact import impulse, toi
 from jaxrb.contact.common import carried_impulses, pad
 from jaxrb.contact.penalty import penalty_wrench
 from jaxrb.dynamics import net_wrench
@@ -89,6 +89,7 @@ def _unpad(state: State, vel, angvel) -> State:
 
 def _impulse_substeps(model: Model):
     velocity_phase, position_phase = PHASES[model.integrator]
+    impact_rows = toi.toi_rows(model)
 
     def run(state, params, force, torque, h):
         contacts = detect(model, params, state)
@@ -100,7 +101,7 @@ def _impulse_substeps(model: Model):
             vel, angvel = impulse.apply_impulses(model, prep, pad(state.vel), pad(state.angvel), impulses)
             return _unpad(state, vel, angvel)
 
-        def solve(state, lam, soft, passes):
+        def solve(state, lam, prep, soft, passes):
             if passes == 0:
                 return state, lam
             separation = impulse.current_separation(model, prep, state)
@@ -112,23 +113,37 @@ def _impulse_substeps(model: Model):
             return _unpad(state, vel, angvel), lam
 
         def substep(_, carry):
-            state, lam, prep_now = carry
+            state, lam = carry
+            if len(impact_rows):
+                start_speed = impulse.normal_velocity(model, prep, state)
             state = velocity_phase(model, params, state, force, torque, h)
             # Restitution uses the approach speed including this substep's loads
             # (gravity): the speed the contact is actually hit with.
-            prep_now = prep_now.replace(approach=impulse.normal_velocity(model, prep_now, state))
+            prep_now = prep.replace(approach=impulse.normal_velocity(model, prep, state))
+            if len(impact_rows):
+                # Fast approaches of the time-of-impact rows are theirs alone: the
+                # solver would otherwise stop them speculatively a substep early.
+                separation = impulse.current_separation(model, prep_now, state)
+                owned = toi.owned_rows(prep_now, separation, params.bounce_threshold, impact_rows)
+                vel, angvel, shift, turn = toi.resolve_impacts(
+                    model, prep_now, pad(state.vel), pad(state.angvel), separation, owned, start_speed, h,
+                    impact_rows)
+                state = _unpad(state, vel, angvel)
+                prep_now = prep_now.replace(active=prep_now.active & ~owned)
             # Warm start: the substep begins with the last substep's (or step's) impulses.
             state = apply(state, lam[:, :1] * prep_now.normal + lam[:, 1:])
-            state, lam = solve(state, lam, soft, model.iterations)
+            state, lam = solve(state, lam, prep_now, soft, model.iterations)
             state = position_phase(model, params, state, h)
-            state, lam = solve(state, lam, None, model.relax_iterations)
+            if len(impact_rows):
+                state = toi.shift_pose(model, params, state, shift, turn)
+            state, lam = solve(state, lam, prep_now, None, model.relax_iterations)
             # Bouncing in the substep of impact (not at the step's end) keeps a
             # bounce from waiting on the plane for the remaining substeps.
             vel, angvel, lam = impulse.restitution_pass(model, prep_now, pad(state.vel), pad(state.angvel),
                                                         lam, params.bounce_threshold)
-            return _unpad(state, vel, angvel), lam, prep_now
+            return _unpad(state, vel, angvel), lam
 
-        state, lam, _ = jax.lax.fori_loop(0, model.substeps, substep, (state, lam, prep))
+        state, lam = jax.lax.fori_loop(0, model.substeps, substep, (state, lam))
         return state.replace(contact_impulse=lam, contact_key=contacts.key, overflow=contacts.overflow)
 
     return run

@@ -64,6 +64,9 @@ class Model:
             contact from restitution instead of ``Params.penalty_damping``.
         penalty_friction: penalty friction law, one of :data:`PENALTY_FRICTIONS`
             (see :mod:`jaxrb.contact.penalty`).
+        time_of_impact: impulse contact resolves fast impacts of the pair
+            kinds in :data:`jaxrb.contact.toi.TOI_KINDS` at their time inside
+            the substep (see :mod:`jaxrb.contact.toi`).
         skipped_pairs: pair kinds present in the scene that no kernel handles.
     """
 
@@ -84,6 +87,7 @@ class Model:
     penalty_smooth: bool = False
     penalty_damping_from_restitution: bool = True
     penalty_friction: str = "spring"
+    time_of_impact: bool = False
     skipped_pairs: tuple = ()
 
     @property
@@ -107,6 +111,7 @@ class Model:
         if self.contact != "none":
             kinds = ", ".join(f"{g.kind} x{g.capacity}" for g in self.pair_groups)
             detail = (f"{self.solver}, {self.iterations} iterations + {self.relax_iterations} relax"
+                      + (", time of impact" if self.time_of_impact else "")
                       if self.contact == "impulse" else
                       f"{'smooth' if self.penalty_smooth else 'hard'} activation, "
                       f"{self.penalty_friction} friction")
@@ -151,6 +156,12 @@ class Params:
         penalty_width: () softplus width (m) of the smooth penalty activation.
         friction_velocity: () regularisation velocity (m/s) of the
             ``"regularized"`` penalty friction: μF_n·v_t/√(|v_t|² + v_reg²).
+        impulse_smoothing: () velocity scale σ (m/s) of the impulse model's
+            soft complementarity: the accumulated normal impulse is clamped
+            with the smooth max ½(λ + √(λ² + (m_n σ)²)) instead of max(λ, 0)
+            (m_n: the contact's normal effective mass). 0 (the default) is the
+            exact clamp; larger values trade bias (contacts push slightly
+            before they touch) for gradients that see contacts coming.
     """
 
     mass: Array
@@ -175,6 +186,7 @@ class Params:
     penalty_damping: Array
     penalty_width: Array
     friction_velocity: Array
+    impulse_smoothing: Array
 
 
 @pytree_dataclass

@@ -90,6 +90,8 @@ class Prepared:
         approach: (C,) v_rel after the current substep's velocity phase (negative
             when approaching); the restitution pass bounces against it.
         active: (C,) bool.
+        smoothing: (C,) width m_n·σ (impulse units) of the smooth normal clamp
+            (``Params.impulse_smoothing``; 0: the exact clamp).
         inv_mass: (n + 1,) padded inverse masses (true ones: impulses are
             applied to the whole body).
         inv_inertia: padded world inverse inertia, likewise.
@@ -114,6 +116,7 @@ class Prepared:
     restitution: Array
     approach: Array
     active: Array
+    smoothing: Array
     inv_mass: Array
     inv_inertia: Array
     split: Array
@@ -160,6 +163,7 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     masses = lambda direction: effective_mass(
         model, split_mass[a], split_mass[b], split_inertia[a], split_inertia[b], arm_a, arm_b, direction)
     rotations = _padded_rotations(model, state)
+    normal_mass = masses(normal)
     round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
     centre = -pad(params.com_offset)  # shape centre from the centre of mass, body frame
     anchor_a = jnp.where(round_a, centre[a], _to_body(model, rotations, a, arm_a))
@@ -170,10 +174,11 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
         anchor_a=anchor_a, anchor_b=anchor_b,
         start_a=pos[a] + _to_world(model, rotations, a, anchor_a),
         start_b=pos[b] + _to_world(model, rotations, b, anchor_b),
-        separation=contacts.dist, normal_mass=masses(normal),
+        separation=contacts.dist, normal_mass=normal_mass,
         tangent_mass=tuple(masses(t) for t in tangents),
         friction=contacts.friction, restitution=contacts.restitution,
         approach=contacts.normal_velocity, active=contacts.active,
+        smoothing=normal_mass * params.impulse_smoothing,
         inv_mass=inv_mass, inv_inertia=inv_inertia, split=split)
 
 
@@ -229,7 +234,22 @@ def _normal_update(prep, rel_vel, lam, separation, h, soft, rows):
     impulse_scale = jnp.where(speculative, 0.0, impulse_scale)
     old = lam[rows, 0]
     delta = -prep.normal_mass[rows] * mass_scale * (vn + bias) - impulse_scale * old
-    return jnp.where(prep.active[rows], jnp.maximum(old + delta, 0.0), 0.0)
+    return jnp.where(prep.active[rows], smooth_clamp(old + delta, prep.smoothing[rows]), 0.0)
+
+
+def smooth_clamp(impulse, width):
+    """max(impulse, 0), or the smooth ½(λ + √(λ² + w²)) where ``width`` w > 0.
+
+    The smooth form is positive everywhere, so a contact that is closing but
+    not yet touching already pushes a little: that is the bias the
+    ``impulse_smoothing`` knob trades for gradients that do not switch.
+    """
+    smooth = width > 0.0
+    root = jnp.sqrt(jnp.where(smooth, impulse ** 2 + width ** 2, 1.0))
+    # For λ < 0 the same value written as w²/(2(√(λ² + w²) − λ)): no cancellation.
+    negative = impulse < 0.0
+    tail = 0.5 * width ** 2 / jnp.where(negative & smooth, root - impulse, 1.0)
+    return jnp.where(smooth, jnp.where(negative, tail, 0.5 * (impulse + root)), jnp.maximum(impulse, 0.0))
 
 
 def _local_velocity_change(model, prep, impulse, rows):
@@ -327,7 +347,11 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
     def update(vel, angvel, lam, rows):
         rel_vel = _relative_velocity(model, prep, vel, angvel, rows)
         vn = jnp.sum(rel_vel * prep.normal[rows], axis=-1)
-        bounce = prep.active[rows] & (prep.approach[rows] < -threshold) & (lam[rows, 0] > 0.0)
+        # λ above the smooth clamp's floor w/2 means the unsmoothed impulse was
+        # positive: the contact really pushed (a smoothed speculative contact
+        # that only nudges must not bounce early).
+        pushed = lam[rows, 0] > 0.5 * prep.smoothing[rows]
+        bounce = prep.active[rows] & (prep.approach[rows] < -threshold) & pushed
         delta = -prep.normal_mass[rows] * (vn + prep.restitution[rows] * prep.approach[rows])
         normal_new = jnp.where(bounce, jnp.maximum(lam[rows, 0] + delta, 0.0), lam[rows, 0])
         impulse = (normal_new - lam[rows, 0])[:, None] * prep.normal[rows]
