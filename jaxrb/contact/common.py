@@ -105,4 +105,7 @@ def clamp_to_disc(vector, limit):
     """Each (C, dim) friction vector scaled down to length <= ``limit`` (C,): the Coulomb cone."""
     length = safe_norm(vector, keepdims=True)
     limit = limit[:, None]
-    return vector * jnp.where(length > limit, safe_div(limit, length), 1.0)
+    # >=, not >: with limit 0 the clamp is 0 for every vector, so its derivative
+    # at the zero vector is 0, not the identity (an unloaded friction row leaked
+    # gradient through a body resting above the plane).
+    return vector * jnp.where(length >= limit, safe_div(limit, length), 1.0)
