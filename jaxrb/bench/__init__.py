@@ -7,6 +7,10 @@
   and free-body throughput in body-steps per second.
 * :mod:`jaxrb.bench.contact`: contact-scene throughput (impulse and penalty
   models; bounce, slide, drop, 3D stack, 2D pyramid).
+* :mod:`jaxrb.bench.gradients`: reverse-mode memory of long rollouts with and
+  without checkpointing, and the time of a gradient against a forward run.
+* :mod:`jaxrb.bench.smoothing`: gradient bias and spread against the contact
+  models' smoothing knobs on the bounce and slide scenes.
 
 Importing this package has no side effects; the command line enables JAX's
 float64 mode for its own process.

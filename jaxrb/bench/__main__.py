@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-SECTIONS = ("tumbling", "throughput", "contact")
+SECTIONS = ("tumbling", "throughput", "contact", "gradients", "smoothing")
 
 #: What each mode runs. ``quick`` is meant to finish well inside two minutes on
 #: two CPU cores; ``full`` inside about ten.
@@ -19,12 +19,15 @@ SETTINGS = {
                   throughput_integrators=("semi_implicit", "rk4"), batches=(1, 64),
                   throughput_steps=1000, num_bodies=8,
                   contact_scenes=("bounce", "slide", "drop"), contact_batches=(64, 16),
-                  contact_steps=100),
+                  contact_steps=100, gradient_scenes=("tumble",), gradient_memory_steps=(1000,),
+                  gradient_time_steps=1000),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
                  contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
-                 contact_batches=(1024, 16), contact_steps=100),
+                 contact_batches=(1024, 16), contact_steps=100,
+                 gradient_scenes=("tumble", "box_bounce"), gradient_memory_steps=(1000, 10000),
+                 gradient_time_steps=1000),
 }
 
 
@@ -32,7 +35,8 @@ def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog="python -m jaxrb.bench",
         description="jaxrb benchmarks: integrator accuracy vs cost on a tumbling body, "
-                    "free-body throughput and contact throughput. Prints Markdown and writes DIR/report.md.")
+                    "free-body and contact throughput, gradient memory and time, and the "
+                    "smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
                         help="fewer configurations and shorter horizons (well under 2 minutes)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
@@ -49,12 +53,12 @@ def main(argv=None) -> int:
     # float64 for the accuracy runs; float32 runs ask for their dtype explicitly.
     jax.config.update("jax_enable_x64", True)
 
-    from jaxrb.bench import free_body
+    from jaxrb.bench import free_body, smoothing
     from jaxrb.bench.report import Report, bullet_list, fmt_step, machine_info
     from jaxrb.bench.timing import Stopwatch
 
     mode = "quick" if args.quick else "full"
-    settings = SETTINGS[mode]
+    settings = {**SETTINGS[mode], **smoothing.SETTINGS[mode]}
     log = free_body.stderr_log
     report = Report("jaxrb benchmark report")
     report.heading("Machine and settings")
@@ -72,6 +76,11 @@ def main(argv=None) -> int:
                     + (f" (stacks: 1 and {settings['contact_batches'][1]})"
                        if {"stack3d", "pyramid2d"} & set(settings["contact_scenes"]) else "")
                     + f", {settings['contact_steps']} steps per jitted scan, float32"),
+        "gradients": (f"scenes {', '.join(settings['gradient_scenes'])}, memory at T = "
+                      f"{', '.join(map(str, settings['gradient_memory_steps']))} with and without "
+                      f"checkpointing, time at T = {settings['gradient_time_steps']}, float32"),
+        "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
+                      f"{', '.join(settings['smoothing_sweeps'])}, float64"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -99,6 +108,13 @@ def main(argv=None) -> int:
             section("3. Contact throughput", lambda: contact.contact_section(
                 settings["contact_scenes"], settings["contact_batches"][0], settings["contact_batches"][1],
                 settings["contact_steps"], repeats=settings["repeats"], log=log))
+        if "gradients" in args.only:
+            from jaxrb.bench import gradients
+
+            section("4. Gradient memory and time", lambda: gradients.gradients_section(settings, log))
+        if "smoothing" in args.only:
+            section("5. Smoothing knobs: gradient bias and spread",
+                    lambda: smoothing.smoothing_section(settings, log=log, out_dir=args.out))
     try:
         load = "{:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
     except (AttributeError, OSError):  # pragma: no cover

@@ -1,0 +1,257 @@
+"""Gradient cost: reverse-mode memory of long rollouts, and gradient time against forward time.
+
+Both figures are for ``jax.grad`` of a trajectory loss with respect to every
+field of ``Params`` (:func:`trajectory_loss`: mean squares of position,
+velocity, angular velocity and the quaternion's vector part over every step,
+the shape of a system-identification loss, so the reverse pass needs every
+step). Scenes (float32 by default, like the other throughput benchmarks):
+
+* **box_bounce**: box (half 0.1 m, 1 kg) dropped from 0.5 m with a tumble,
+  restitution 0.5, onto a plane; impulse contact, dt = 1/60 s, 4 substeps.
+* **tumble**: torque-free body, principal inertia (0.3, 0.35, 0.4) kg m²,
+  ω0 = (0.1, 15, 0.1) rad/s, no gravity; semi-implicit Euler, dt = 1/240 s.
+
+**Memory** is XLA's own account of the compiled gradient program,
+``jax.jit(grad).lower(...).compile().memory_analysis()``: ``temp_size_in_bytes``
+is the scratch the program allocates besides its arguments and outputs, and
+for reverse mode it is dominated by the residuals saved for the backward
+pass. Nothing is run, so T = 10 000 costs one compile, not 10 000 steps. It
+is measured without checkpointing and with ``rb.rollout(..., checkpoint=True)``
+(segments of about √T steps, each recomputed in the backward pass), so
+memory grows as T and about √T respectively.
+
+**Time**: compile time apart; run = median of repeated calls with
+``block_until_ready`` (:mod:`jaxrb.bench.timing`) of the forward loss and of
+its gradient, both over the same T steps. The ratio grad / forward is the
+"cheap gradient" figure (target ≤ 3×; checkpointing adds about one more
+forward pass).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+
+import jaxrb as rb
+from jaxrb.bench.report import fmt_fixed, markdown_table
+from jaxrb.bench.timing import compile_jitted, time_compiled
+from jaxrb.step import _segment_length
+
+
+def box_bounce_scene():
+    scene = rb.Scene(dim=3)
+    scene.add_plane(restitution=0.5)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.5), angvel=(1.0, 2.0, 0.5),
+                   restitution=0.5)
+    return scene
+
+
+def tumble_scene():
+    scene = rb.Scene(dim=3, gravity=(0.0, 0.0, 0.0))
+    scene.add_body(None, mass=1.0, inertia=(0.3, 0.35, 0.4), angvel=(0.1, 15.0, 0.1))
+    return scene
+
+
+#: name -> (scene factory, description, build settings)
+SCENES = {
+    "box_bounce": (box_bounce_scene, "box half 0.1 m dropped from 0.5 m with a tumble, e=0.5, impulse",
+                   dict(dt=1 / 60, substeps=4, contact="impulse")),
+    "tumble": (tumble_scene, "torque-free tumbling body, semi-implicit",
+               dict(dt=1 / 240, integrator="semi_implicit")),
+}
+
+#: What :func:`run` does by default; ``python -m jaxrb.bench`` passes its own.
+DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce"), gradient_memory_steps=(1000, 10000),
+                        gradient_time_steps=1000, repeats=5, gradient_dtype="float32")
+
+
+def trajectory_loss(trajectory) -> jax.Array:
+    """Mean squares of pos, vel, angvel (and quat's vector part in 3D) over a trajectory.
+
+    Args:
+        trajectory: State with a leading time axis (T, n, ...).
+
+    Returns:
+        () scalar.
+    """
+    loss = jnp.mean(trajectory.pos ** 2) + jnp.mean(trajectory.vel ** 2) + jnp.mean(trajectory.angvel ** 2)
+    if trajectory.quat is not None:
+        loss = loss + jnp.mean(trajectory.quat[..., 1:] ** 2)
+    return loss
+
+
+def make_loss(step: Callable, num_steps: int, checkpoint: bool) -> Callable:
+    """``loss(params, state)`` of a ``num_steps`` rollout (see :func:`trajectory_loss`)."""
+
+    def loss(params, state):
+        return trajectory_loss(rb.rollout(step, state, params, num_steps, checkpoint=checkpoint))
+
+    return loss
+
+
+def build(name: str, dtype="float32"):
+    """``(step, params, state)`` of scene ``name`` from :data:`SCENES`."""
+    if name not in SCENES:
+        raise ValueError(f"gradients: unknown scene {name!r}; valid scenes are: {', '.join(SCENES)}")
+    factory, _, settings = SCENES[name]
+    model, params, state = factory().build(dtype=jnp.dtype(dtype), **settings)
+    return rb.make_step(model), params, state
+
+
+def _memory_row(name, num_steps, checkpoint, compiled, compile_s) -> dict:
+    stats = compiled.memory_analysis()
+    return dict(kind="memory", scene=name, num_steps=num_steps, checkpoint=checkpoint,
+                segment=_segment_length(num_steps, True) if checkpoint else None,
+                temp_bytes=int(stats.temp_size_in_bytes),
+                argument_bytes=int(stats.argument_size_in_bytes),
+                output_bytes=int(stats.output_size_in_bytes),
+                bytes_per_step=stats.temp_size_in_bytes / num_steps, compile_s=compile_s)
+
+
+def gradient_memory(name: str, num_steps: int, checkpoint: bool, dtype="float32") -> dict:
+    """Compile the gradient of a ``num_steps`` rollout loss and read XLA's memory account.
+
+    Returns:
+        A row: ``kind="memory"``, ``scene``, ``num_steps``, ``checkpoint``,
+        ``segment`` (checkpoint segment length in steps, or None),
+        ``temp_bytes``, ``argument_bytes``, ``output_bytes``,
+        ``bytes_per_step`` (temp / T) and ``compile_s``.
+    """
+    step, params, state = build(name, dtype)
+    compiled, compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, checkpoint)), params, state)
+    return _memory_row(name, num_steps, checkpoint, compiled, compile_s)
+
+
+def gradient_time(name: str, num_steps: int, repeats: int = 5, dtype="float32",
+                  checkpoints: Sequence[bool] = (False, True), budget_s: float = 5.0, log=None) -> list:
+    """Time the forward loss and its gradient over ``num_steps`` steps.
+
+    Each function gets one warm-up call and up to ``repeats`` timed calls,
+    fewer (but at least 3) once ``budget_s`` seconds of timed calls are spent.
+
+    Every gradient compiled here also yields its memory row, so a caller that
+    times T steps need not compile the same programs again for memory.
+
+    Returns:
+        Rows: one ``kind="time"`` per entry of ``checkpoints`` (``scene``,
+        ``num_steps``, ``checkpoint``, ``forward_compile_s``, ``forward_s``,
+        ``grad_compile_s``, ``grad_s``, ``ratio`` = grad_s / forward_s,
+        ``forward_temp_bytes``), then the matching ``kind="memory"`` rows.
+    """
+    log = log or (lambda text: None)
+    step, params, state = build(name, dtype)
+    forward, forward_compile_s = compile_jitted(make_loss(step, num_steps, False), params, state)
+    forward_s, _, value = time_compiled(forward, params, state, repeats=repeats, budget_s=budget_s)
+    if not bool(jnp.isfinite(value)):
+        raise FloatingPointError(f"gradients bench {name}: non-finite loss {value}")
+    forward_temp = int(forward.memory_analysis().temp_size_in_bytes)
+    times, memories = [], []
+    for checkpoint in checkpoints:
+        grad, grad_compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, checkpoint)), params, state)
+        grad_s, _, gradient = time_compiled(grad, params, state, repeats=repeats, budget_s=budget_s)
+        if not all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(gradient)):
+            raise FloatingPointError(f"gradients bench {name}: non-finite gradient "
+                                     f"(checkpoint={checkpoint})")
+        times.append(dict(kind="time", scene=name, num_steps=num_steps, checkpoint=checkpoint,
+                          forward_compile_s=forward_compile_s, forward_s=forward_s,
+                          grad_compile_s=grad_compile_s, grad_s=grad_s, ratio=grad_s / forward_s,
+                          forward_temp_bytes=forward_temp))
+        memories.append(_memory_row(name, num_steps, checkpoint, grad, grad_compile_s))
+        log(f"gradients {name:>10} T={num_steps} checkpoint={checkpoint!s:5}: "
+            f"forward {forward_s * 1e3:.2f} ms, grad {grad_s * 1e3:.2f} ms (x{grad_s / forward_s:.2f}), grad compile {grad_compile_s:.1f} s")
+    return times + memories
+
+
+def run(settings: Optional[dict] = None, log=None) -> list:
+    """Run the gradient benchmark; return its rows (dicts, see the functions above).
+
+    Args:
+        settings: keys of :data:`DEFAULT_SETTINGS` (missing ones take the
+            default): ``gradient_scenes``, ``gradient_memory_steps`` (T
+            values for memory), ``gradient_time_steps`` (T for timing, whose
+            memory comes from the same compiled programs), ``repeats``,
+            ``gradient_dtype``. Other keys are ignored, so the command
+            line's whole settings dict can be passed.
+        log: optional ``log(text)`` for progress.
+
+    Returns:
+        The ``"time"`` rows, then the ``"memory"`` rows ordered by scene, T,
+        checkpoint.
+    """
+    settings = {**DEFAULT_SETTINGS, **(settings or {})}
+    log = log or (lambda text: None)
+    times, memories = [], []
+    for name in settings["gradient_scenes"]:
+        timed = gradient_time(name, settings["gradient_time_steps"], repeats=settings["repeats"],
+                              dtype=settings["gradient_dtype"], log=log)
+        times += [row for row in timed if row["kind"] == "time"]
+        memories += [row for row in timed if row["kind"] == "memory"]
+        for num_steps in settings["gradient_memory_steps"]:
+            if num_steps == settings["gradient_time_steps"]:
+                continue  # measured above from the timed programs
+            for checkpoint in (False, True):
+                row = gradient_memory(name, num_steps, checkpoint, settings["gradient_dtype"])
+                log(f"gradients {name:>10} T={num_steps} checkpoint={checkpoint!s:5}: temp "
+                    f"{row['temp_bytes'] / 1e6:.2f} MB, compile {row['compile_s']:.1f} s")
+                memories.append(row)
+    memories.sort(key=lambda row: (settings["gradient_scenes"].index(row["scene"]), row["num_steps"],
+                                   row["checkpoint"]))
+    return times + memories
+
+
+def fmt_bytes(value) -> str:
+    """Bytes in binary units: ``fmt_bytes(3.3e6) -> '3.15 MiB'``."""
+    value = float(value)
+    for factor, unit in ((2 ** 30, "GiB"), (2 ** 20, "MiB"), (2 ** 10, "KiB")):
+        if abs(value) >= factor:
+            return f"{value / factor:.2f} {unit}"
+    return f"{value:.0f} B"
+
+
+def markdown(rows: Sequence[dict]) -> str:
+    """Two Markdown tables (time, then memory) from the rows of :func:`run`."""
+    times = [row for row in rows if row["kind"] == "time"]
+    memories = [row for row in rows if row["kind"] == "memory"]
+    unchecked = {(row["scene"], row["num_steps"]): row["temp_bytes"] for row in memories
+                 if not row["checkpoint"]}
+    parts = []
+    if times:
+        parts.append(markdown_table(
+            ["scene", "T", "checkpoint", "forward compile (s)", "forward run (ms)", "grad compile (s)",
+             "grad run (ms)", "grad / forward"],
+            [[row["scene"], row["num_steps"], "yes" if row["checkpoint"] else "no",
+              fmt_fixed(row["forward_compile_s"], 2), fmt_fixed(1e3 * row["forward_s"], 2),
+              fmt_fixed(row["grad_compile_s"], 2), fmt_fixed(1e3 * row["grad_s"], 2),
+              fmt_fixed(row["ratio"], 2) + "×"] for row in times]))
+    if memories:
+        parts.append(markdown_table(
+            ["scene", "T", "checkpoint", "segment", "temp memory", "bytes / step", "vs no checkpoint",
+             "compile (s)"],
+            [[row["scene"], row["num_steps"], "yes" if row["checkpoint"] else "no",
+              row["segment"] if row["segment"] else "—", fmt_bytes(row["temp_bytes"]),
+              fmt_fixed(row["bytes_per_step"], 0),
+              fmt_fixed(row["temp_bytes"] / unchecked[(row["scene"], row["num_steps"])], 3)
+              if (row["scene"], row["num_steps"]) in unchecked else "—",
+              fmt_fixed(row["compile_s"], 1)] for row in memories]))
+    return "\n\n".join(parts)
+
+
+def gradients_section(settings: Optional[dict] = None, log=None):
+    """Run the benchmark; return ``(markdown, rows)`` like the other sections."""
+    settings = {**DEFAULT_SETTINGS, **(settings or {})}
+    rows = run(settings, log)
+    text = [
+        "Scenes: " + "; ".join(f"**{n}**: {SCENES[n][1]}" for n in settings["gradient_scenes"]) + ". "
+        f"{settings['gradient_dtype']}; `jax.grad` with respect to all Params of the mean squared state over "
+        "the whole rollout (`rb.rollout`, every step kept). *grad / forward*: median run time of the "
+        f"jitted gradient over that of the jitted forward loss, T = {settings['gradient_time_steps']} "
+        "(target ≤ 3×). *temp memory*: `temp_size_in_bytes` of XLA's `memory_analysis()` of the "
+        "compiled gradient (scratch besides arguments and outputs, mostly the residuals kept for "
+        "the backward pass); *segment*: steps per `jax.checkpoint` segment (`checkpoint=True`, "
+        "about √T).",
+        "",
+        markdown(rows),
+    ]
+    return "\n".join(text), rows
