@@ -10,12 +10,15 @@ from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere, poi
 from jaxrb.step import make_step, rollout
 from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Model, Params, State, Wrench
 
+# Modules, not functions: rb.sweep.batch_params and rb.sysid.fit.
+from jaxrb import sweep, sysid  # noqa: E402  (they use the names above)
+
 __version__ = "0.1.0"
 
 __all__ = [
     "COLLIDING", "ContactSet", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
     "Box", "Capsule", "Circle", "Model", "Params", "PointMasses", "Polygon", "Scene", "Sphere",
     "State", "Wrench", "angular_momentum", "kinetic_energy", "make_step", "point_mass_properties",
-    "potential_energy", "quaternion", "rollout", "total_angular_momentum", "world_inertia",
-    "wrench_at_points",
+    "potential_energy", "quaternion", "rollout", "sweep", "sysid", "total_angular_momentum",
+    "world_inertia", "wrench_at_points",
 ]
