@@ -130,6 +130,7 @@ def _impulse_substeps(model: Model):
                     impact_rows)
                 state = _unpad(state, vel, angvel)
                 prep_now = prep_now.replace(active=prep_now.active & ~owned)
+                lam = jnp.where(owned[:, None], 0.0, lam)  # no warm start for a row the solver skips
             # Warm start: the substep begins with the last substep's (or step's) impulses.
             state = apply(state, lam[:, :1] * prep_now.normal + lam[:, 1:])
             state, lam = solve(state, lam, prep_now, soft, model.iterations)
