@@ -36,6 +36,17 @@ def noisy(observed, traj, seed):
     return observed.replace(pos=observed.pos + 0.01 * scale * noise)
 
 
+def penalty_observations(scene, num_steps, seed, every=20):
+    """Build ``scene`` with penalty contact (1 ms), roll it out and observe it noisily.
+
+    Returns (step, true params, initial state, noisy observation every ``every`` steps).
+    """
+    model, truth, state = scene.build(contact="penalty", dt=1e-3)
+    step = rb.make_step(model)
+    traj = jax.jit(lambda s, p: rb.rollout(step, s, p, num_steps, every=every))(state, truth)
+    return step, truth, state, noisy(sysid.observe(traj, every=every), traj, seed=seed)
+
+
 def assert_recovered(fitted, truth, name):
     error = np.max(np.abs(np.asarray(fitted) / np.asarray(truth) - 1.0))
     assert error < RECOVERY_TOLERANCE, (name, np.asarray(fitted), np.asarray(truth))
@@ -312,10 +323,7 @@ def test_recover_friction_of_sliding_box():
     scene = rb.Scene(dim=3)
     scene.add_plane(friction=0.5)
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(2.0, 0.0, 0.0), friction=0.4)
-    model, truth, state = scene.build(contact="penalty", dt=1e-3)
-    step = rb.make_step(model)
-    traj = jax.jit(lambda s, p: rb.rollout(step, s, p, 1000, every=20))(state, truth)
-    observed = noisy(sysid.observe(traj, every=20), traj, seed=2)
+    step, truth, state, observed = penalty_observations(scene, 1000, seed=2)
     start = truth.replace(friction=truth.friction * 1.5)
     result = sysid.fit(step, start, state, observed, fields="friction", optimizer=optax.adam(0.05),
                        num_steps=MAX_FIT_STEPS, tol=1e-5, patience=30)
@@ -328,10 +336,7 @@ def test_recover_restitution_of_bouncing_ball():
     scene = rb.Scene(dim=3)
     scene.add_plane(restitution=0.0)
     scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.0, 0.0, 0.6), vel=(0.3, 0.0, 0.0), restitution=0.7)
-    model, truth, state = scene.build(contact="penalty", dt=1e-3)
-    step = rb.make_step(model)
-    traj = jax.jit(lambda s, p: rb.rollout(step, s, p, 1200, every=20))(state, truth)
-    observed = noisy(sysid.observe(traj, every=20), traj, seed=3)
+    step, truth, state, observed = penalty_observations(scene, 1200, seed=3)
     start = truth.replace(restitution=truth.restitution * 0.5)
     # No early stopping: the loss sits on a plateau (0.020 -> 0.018) for ~150
     # steps before it falls to the noise floor, which fooled tol=1e-3, patience=100.
