@@ -16,23 +16,59 @@ from jaxrb.types import Model, Params, State, Wrench
 
 
 def apply_world_inertia(quat, inertia, vector):
-    """R I Rᵀ v. quat: (n, 4), inertia: (n, 3, 3) body frame, vector: (n, 3) world."""
+    """R I Rᵀ v: a body-frame tensor applied to a world vector, without forming R I Rᵀ.
+
+    Args:
+        quat: (n, 4) unit quaternions (w, x, y, z), body to world.
+        inertia: (n, 3, 3) body-frame tensors (inertia or inverse inertia).
+        vector: (n, 3) world-frame vectors (e.g. angular velocity).
+
+    Returns:
+        (n, 3) world-frame products (e.g. angular momentum).
+    """
     return quat_ops.rotate(quat, matvec3(inertia, quat_ops.rotate_inverse(quat, vector)))
 
 
 def world_inertia(quat, inertia):
-    """World-frame inertia tensors R I Rᵀ. quat: (n, 4), inertia: (n, 3, 3). Returns (n, 3, 3)."""
+    """World-frame inertia tensors R I Rᵀ.
+
+    Args:
+        quat: (n, 4) unit quaternions (w, x, y, z), body to world.
+        inertia: (n, 3, 3) body-frame inertia tensors about the centres of mass.
+
+    Returns:
+        (n, 3, 3) world-frame inertia tensors.
+    """
     rotation = quat_ops.to_rotation_matrix(quat)
     return rotation @ inertia @ jnp.swapaxes(rotation, -1, -2)
 
 
 def inverse_inertia(params: Params, dim: int):
-    """Body-frame inverse inertia: (n, 3, 3) in 3D (closed-form), (n,) in 2D."""
+    """Body-frame inverse inertia.
+
+    Args:
+        params: Params (uses ``inertia``: (n, 3, 3) in 3D, (n,) in 2D).
+        dim: 2 or 3.
+
+    Returns:
+        (n, 3, 3) inverse tensors in 3D (closed-form), (n,) inverse moments in 2D.
+    """
     return inverse3(params.inertia) if dim == 3 else 1.0 / params.inertia
 
 
 def net_wrench(model: Model, params: Params, applied: Wrench | None):
-    """Force (n, dim) and torque ((n, 3) or (n,)) from gravity, constant and applied loads."""
+    """Total force and torque on each body from gravity, constant and applied loads.
+
+    Args:
+        model: the scene's Model.
+        params: Params (``mass``, ``gravity``, ``force``, ``torque``).
+        applied: optional Wrench for this step (force (n, dim), torque (n, 3)
+            or (n,)), or None.
+
+    Returns:
+        (force, torque): (n, dim) world-frame forces at the centres of mass and
+        (n, 3) world-frame torques in 3D, (n,) in 2D.
+    """
     force = params.mass[:, None] * params.gravity + params.force
     torque = params.torque
     if applied is not None:
@@ -64,21 +100,48 @@ def wrench_at_points(model: Model, state: State, body, force, point) -> Wrench:
 
 
 def angular_momentum(model: Model, params: Params, state: State):
-    """Per-body angular momentum about each centre of mass: (n, 3) world frame, or (n,) in 2D."""
+    """Per-body angular momentum about each centre of mass.
+
+    Args:
+        model: the scene's Model.
+        params: Params (body-frame ``inertia``).
+        state: State (``quat`` and ``angvel``).
+
+    Returns:
+        (n, 3) world-frame angular momenta in 3D, (n,) in 2D.
+    """
     if model.dim == 2:
         return params.inertia * state.angvel
     return apply_world_inertia(state.quat, params.inertia, state.angvel)
 
 
 def total_angular_momentum(model: Model, params: Params, state: State):
-    """Angular momentum of the whole scene about the world origin: (3,) or () in 2D."""
+    """Angular momentum of the whole scene about the world origin (spin plus orbital).
+
+    Args:
+        model: the scene's Model.
+        params: Params (``mass``, ``inertia``).
+        state: State (positions, velocities, orientations).
+
+    Returns:
+        (3,) world-frame total angular momentum in 3D, () in 2D.
+    """
     orbital_fn = cross if model.dim == 3 else cross2
     orbital = orbital_fn(state.pos, params.mass[:, None] * state.vel)
     return jnp.sum(angular_momentum(model, params, state) + orbital, axis=0)
 
 
 def kinetic_energy(model: Model, params: Params, state: State):
-    """Per-body kinetic energy, translational plus rotational: (n,)."""
+    """Per-body kinetic energy, translational plus rotational.
+
+    Args:
+        model: the scene's Model.
+        params: Params (``mass``, ``inertia``).
+        state: State (``vel``, ``angvel``, orientation).
+
+    Returns:
+        (n,) kinetic energies (J).
+    """
     translational = 0.5 * params.mass * jnp.sum(state.vel * state.vel, axis=-1)
     momentum = angular_momentum(model, params, state)
     rotational = 0.5 * (momentum * state.angvel if model.dim == 2
@@ -87,5 +150,14 @@ def kinetic_energy(model: Model, params: Params, state: State):
 
 
 def potential_energy(model: Model, params: Params, state: State):
-    """Per-body gravitational potential energy −m g·x: (n,)."""
+    """Per-body gravitational potential energy −m g·x (zero at the world origin).
+
+    Args:
+        model: the scene's Model.
+        params: Params (``mass``, ``gravity``).
+        state: State (``pos``).
+
+    Returns:
+        (n,) potential energies (J).
+    """
     return -params.mass * jnp.sum(state.pos * params.gravity, axis=-1)

@@ -60,7 +60,15 @@ def angvel_from_momentum(quat, momentum, params, inv_inertia, angvel_body):
 
 
 def body_angvel_and_momentum(params: Params, state: State):
-    """Body-frame ω (n, 3) and world angular momentum L = R I ω_b (n, 3) of a 3D state."""
+    """Body-frame ω and world angular momentum L = R I ω_b of a 3D state.
+
+    Args:
+        params: Params (body-frame ``inertia`` (n, 3, 3)).
+        state: 3D State (``quat``, ``angvel``).
+
+    Returns:
+        ((n, 3) body-frame ω, (n, 3) world angular momentum L).
+    """
     angvel_body = quat_ops.rotate_inverse(state.quat, state.angvel)
     return angvel_body, quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
 
@@ -78,7 +86,19 @@ def _damp(model, value, rate, h):
 
 
 def euler(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Explicit Euler substep."""
+    """Explicit Euler substep: every update uses the values at the start of the substep.
+
+    Args:
+        model: the scene's Model (dimension, orientation update, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State after the substep (``time`` is left to the caller).
+    """
     accel = _linear_accel(params, force)
     if model.damping:
         accel = accel - params.linear_damping[:, None] * state.vel
@@ -103,6 +123,17 @@ def semi_implicit_velocity(model: Model, params: Params, state: State, force, to
     state.angvel becomes I_w⁻¹ L at the *current* orientation; the position
     phase moves the orientation and re-expresses ω for the new one. The
     contact solver runs between the two phases.
+
+    Args:
+        model: the scene's Model (dimension, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State with ``vel`` and ``angvel`` updated; positions and orientation unchanged.
     """
     vel = _damp(model, state.vel + h * _linear_accel(params, force), params.linear_damping, h)
     if model.dim == 2:
@@ -115,7 +146,17 @@ def semi_implicit_velocity(model: Model, params: Params, state: State, force, to
 
 
 def semi_implicit_position(model: Model, params: Params, state: State, h) -> State:
-    """Position phase of symplectic Euler: move x and q with the new velocities, keep world L."""
+    """Position phase of symplectic Euler: move x and q with the new velocities, keep world L.
+
+    Args:
+        model: the scene's Model (dimension, orientation update).
+        params: Params (inertia).
+        state: State after the velocity phase.
+        h: () substep length (s).
+
+    Returns:
+        State with ``pos`` and the orientation advanced (``time`` is left to the caller).
+    """
     pos = state.pos + h * state.vel
     if model.dim == 2:
         return state.replace(pos=pos, angle=state.angle + h * state.angvel)
@@ -126,7 +167,19 @@ def semi_implicit_position(model: Model, params: Params, state: State, h) -> Sta
 
 
 def semi_implicit(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Symplectic Euler substep that integrates world angular momentum."""
+    """Symplectic Euler substep that integrates world angular momentum.
+
+    Args:
+        model: the scene's Model (dimension, orientation update, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State after the substep (``time`` is left to the caller).
+    """
     state = semi_implicit_velocity(model, params, state, force, torque, h)
     return semi_implicit_position(model, params, state, h)
 
@@ -146,7 +199,7 @@ def solve_gyroscopic(inertia, angvel_body, h, iterations=GYRO_NEWTON_ITERATIONS)
     Args:
         inertia: (n, 3, 3) body-frame inertia.
         angvel_body: (n, 3) body-frame ω0.
-        h: step length.
+        h: () step length (s).
         iterations: Newton iterations (unrolled; two reach round-off for the
             spin rates a step can resolve).
 
@@ -168,7 +221,21 @@ def solve_gyroscopic(inertia, angvel_body, h, iterations=GYRO_NEWTON_ITERATIONS)
 
 
 def implicit_gyro_velocity(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Velocity phase with the gyroscopic term implicit: ω_b solves I(ω_b − ω_b0) + h ω_b × Iω_b = hτ_b."""
+    """Velocity phase with the gyroscopic term implicit: ω_b solves I(ω_b − ω_b0) + h ω_b × Iω_b = hτ_b.
+
+    In 2D there is no gyroscopic term and this is :func:`semi_implicit_velocity`.
+
+    Args:
+        model: the scene's Model (dimension, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State with ``vel`` and ``angvel`` updated; positions and orientation unchanged.
+    """
     if model.dim == 2:
         return semi_implicit_velocity(model, params, state, force, torque, h)
     vel = _damp(model, state.vel + h * _linear_accel(params, force), params.linear_damping, h)
@@ -181,7 +248,17 @@ def implicit_gyro_velocity(model: Model, params: Params, state: State, force, to
 
 
 def implicit_gyro_position(model: Model, params: Params, state: State, h) -> State:
-    """Position phase that carries the body-frame ω (the implicit solve's unknown) along."""
+    """Position phase that carries the body-frame ω (the implicit solve's unknown) along.
+
+    Args:
+        model: the scene's Model (dimension, orientation update).
+        params: Params (inertia).
+        state: State after the velocity phase.
+        h: () substep length (s).
+
+    Returns:
+        State with ``pos`` and the orientation advanced (``time`` is left to the caller).
+    """
     pos = state.pos + h * state.vel
     if model.dim == 2:
         return state.replace(pos=pos, angle=state.angle + h * state.angvel)
@@ -191,13 +268,37 @@ def implicit_gyro_position(model: Model, params: Params, state: State, h) -> Sta
 
 
 def implicit_gyro(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Semi-implicit substep with the gyroscopic term implicit in the body frame."""
+    """Semi-implicit substep with the gyroscopic term implicit in the body frame.
+
+    Args:
+        model: the scene's Model (dimension, orientation update, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State after the substep (``time`` is left to the caller).
+    """
     state = implicit_gyro_velocity(model, params, state, force, torque, h)
     return implicit_gyro_position(model, params, state, h)
 
 
 def rk4(model: Model, params: Params, state: State, force, torque, h) -> State:
-    """Classic RK4 substep on (x, orientation, v, L) with the wrench held constant."""
+    """Classic RK4 substep on (x, orientation, v, L) with the wrench held constant.
+
+    Args:
+        model: the scene's Model (dimension, orientation update, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State after the substep (``time`` is left to the caller).
+    """
     accel = _linear_accel(params, force)
 
     if model.dim == 2:

@@ -15,36 +15,83 @@ import jax.numpy as jnp
 
 
 def dot(a, b):
-    """Dot product over the last axis. a, b: (..., k). Returns (...)."""
+    """Dot product over the last axis.
+
+    Args:
+        a, b: (..., k) vectors (broadcast against each other).
+
+    Returns:
+        (...) the dot products.
+    """
     return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
 
 
 def cross(a, b):
-    """3D cross product. a, b: (..., 3). Returns (..., 3)."""
+    """3D cross product a × b.
+
+    Args:
+        a, b: (..., 3) vectors (broadcast against each other).
+
+    Returns:
+        (..., 3) the cross products.
+    """
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
     return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
 
 
 def cross2(a, b):
-    """2D cross product (the z component). a, b: (..., 2). Returns (...)."""
+    """2D cross product (the z component of a × b).
+
+    Args:
+        a, b: (..., 2) vectors (broadcast against each other).
+
+    Returns:
+        (...) a_x b_y − a_y b_x.
+    """
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def cross_scalar2(w, r):
-    """w e_z x r for a scalar w: (...) and r: (..., 2). Returns (..., 2)."""
+    """w e_z × r: the velocity of point r of a 2D body spinning at rate w.
+
+    Args:
+        w: (...) scalar angular velocities about e_z.
+        r: (..., 2) vectors in the plane.
+
+    Returns:
+        (..., 2) the vectors (−w r_y, w r_x).
+    """
     return jnp.stack([-w * r[..., 1], w * r[..., 0]], axis=-1)
 
 
 def safe_norm(x, axis=-1, keepdims=False):
-    """Euclidean norm whose gradient at x = 0 is 0 instead of NaN. x: (..., k)."""
+    """Euclidean norm whose gradient at x = 0 is 0 instead of NaN.
+
+    Args:
+        x: (..., k) vectors.
+        axis: the axis to reduce (an int, default the last).
+        keepdims: keep the reduced axis with length 1.
+
+    Returns:
+        (...) norms, or (..., 1) with ``keepdims``.
+    """
     sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
     nonzero = sq > 0.0
     return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
 
 
 def safe_div(num, den, fallback=0.0):
-    """num / den, and ``fallback`` (with zero gradient) where den == 0."""
+    """num / den, and ``fallback`` (with zero gradient) where den == 0.
+
+    Args:
+        num: (...) numerators.
+        den: (...) denominators, broadcast against ``num``.
+        fallback: () or (...) value where ``den`` is zero.
+
+    Returns:
+        (...) the quotients, broadcast shape of the inputs.
+    """
     nonzero = den != 0.0
     return jnp.where(nonzero, num / jnp.where(nonzero, den, 1.0), fallback)
 
@@ -54,7 +101,11 @@ def safe_normalize(x, axis=-1, fallback=None):
 
     Args:
         x: (..., k) vectors.
+        axis: the axis holding the vector components (an int, default the last).
         fallback: optional (k,) or (..., k) vector used where x is zero.
+
+    Returns:
+        (..., k) unit vectors (or ``fallback`` where x is zero), dtype of x.
     """
     norm = safe_norm(x, axis=axis, keepdims=True)
     nonzero = norm > 0.0
@@ -65,17 +116,31 @@ def safe_normalize(x, axis=-1, fallback=None):
 
 
 def matvec3(m, v):
-    """m @ v for 3x3 matrices on components. m: (..., 3, 3), v: (..., 3)."""
+    """m @ v for 3x3 matrices, spelt out on components.
+
+    Args:
+        m: (..., 3, 3) matrices.
+        v: (..., 3) vectors.
+
+    Returns:
+        (..., 3) the products.
+    """
     return jnp.stack(
         [m[..., i, 0] * v[..., 0] + m[..., i, 1] * v[..., 1] + m[..., i, 2] * v[..., 2]
          for i in range(3)], axis=-1)
 
 
 def inverse3(m):
-    """Closed-form inverse of 3x3 matrices via the adjugate. m: (..., 3, 3).
+    """Closed-form inverse of 3x3 matrices via the adjugate.
 
     The caller guarantees invertibility (inertia tensors are validated at build
     time); no pivoting is needed for the well-conditioned matrices we invert.
+
+    Args:
+        m: (..., 3, 3) invertible matrices.
+
+    Returns:
+        (..., 3, 3) the inverses.
     """
     a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
     d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
@@ -92,12 +157,27 @@ def inverse3(m):
 
 
 def rot2(angle):
-    """2D rotation matrices. angle: (...). Returns (..., 2, 2)."""
+    """2D rotation matrices.
+
+    Args:
+        angle: (...) rotation angles (rad), counter-clockwise.
+
+    Returns:
+        (..., 2, 2) the matrices [[cos, −sin], [sin, cos]].
+    """
     c, s = jnp.cos(angle), jnp.sin(angle)
     return jnp.stack([jnp.stack([c, -s], axis=-1), jnp.stack([s, c], axis=-1)], axis=-2)
 
 
 def rotate2(angle, v):
-    """Rotate 2D vectors by ``angle``. angle: (...), v: (..., 2). Returns (..., 2)."""
+    """Rotate 2D vectors by ``angle``.
+
+    Args:
+        angle: (...) rotation angles (rad), counter-clockwise.
+        v: (..., 2) vectors.
+
+    Returns:
+        (..., 2) the rotated vectors.
+    """
     c, s = jnp.cos(angle), jnp.sin(angle)
     return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)

@@ -16,7 +16,14 @@ def _parts(q):
 
 
 def multiply(a, b):
-    """Hamilton product a ⊗ b. a, b: (..., 4). Returns (..., 4)."""
+    """Hamilton product a ⊗ b (the rotation b followed by a).
+
+    Args:
+        a, b: (..., 4) quaternions (w, x, y, z), broadcast against each other.
+
+    Returns:
+        (..., 4) the products.
+    """
     aw, ax, ay, az = _parts(a)
     bw, bx, by, bz = _parts(b)
     return jnp.stack([
@@ -28,23 +35,44 @@ def multiply(a, b):
 
 
 def conjugate(q):
-    """Conjugate (the inverse of a unit quaternion). q: (..., 4)."""
+    """Conjugate (the inverse of a unit quaternion).
+
+    Args:
+        q: (..., 4) quaternions (w, x, y, z).
+
+    Returns:
+        (..., 4) quaternions (w, −x, −y, −z).
+    """
     return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
 
 
 def normalize(q):
-    """Unit quaternion along q; the identity where q = 0. q: (..., 4)."""
+    """Unit quaternion along q; the identity where q = 0.
+
+    Args:
+        q: (..., 4) quaternions (w, x, y, z), any length.
+
+    Returns:
+        (..., 4) unit quaternions; gradient finite at q = 0.
+    """
     identity = jnp.array([1.0, 0.0, 0.0, 0.0], dtype=q.dtype)
     return safe_normalize(q, fallback=identity)
 
 
 def rotate(q, v):
-    """Rotate body vectors into the world: R(q) v. q: (..., 4), v: (..., 3).
+    """Rotate body vectors into the world: R(q) v.
 
     Exact for any non-zero q, not only unit ones: the rotation part is divided
     by |q|². A renormalised float32 quaternion is 1 ± ~1e-7 long, with a bias,
     and without this the world ↔ body round trip every step scaled ω by that
     bias and drifted |L| by 1e-3 over 4800 steps.
+
+    Args:
+        q: (..., 4) non-zero quaternions (w, x, y, z), body to world.
+        v: (..., 3) body-frame vectors.
+
+    Returns:
+        (..., 3) the world-frame vectors.
     """
     w, x, y, z = _parts(q)
     vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
@@ -61,12 +89,27 @@ def rotate(q, v):
 
 
 def rotate_inverse(q, v):
-    """Rotate world vectors into the body frame: R(q)^T v. q: (..., 4) unit, v: (..., 3)."""
+    """Rotate world vectors into the body frame: R(q)^T v.
+
+    Args:
+        q: (..., 4) unit quaternions (w, x, y, z), body to world.
+        v: (..., 3) world-frame vectors.
+
+    Returns:
+        (..., 3) the body-frame vectors.
+    """
     return rotate(conjugate(q), v)
 
 
 def to_rotation_matrix(q):
-    """Closed-form rotation matrix of a unit quaternion. q: (..., 4). Returns (..., 3, 3)."""
+    """Closed-form rotation matrix of a unit quaternion.
+
+    Args:
+        q: (..., 4) unit quaternions (w, x, y, z).
+
+    Returns:
+        (..., 3, 3) rotation matrices R with R v = q v q*.
+    """
     w, x, y, z = _parts(q)
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
@@ -92,28 +135,60 @@ def _half_angle_terms(theta_sq):
 
 
 def exp(rotvec):
-    """Quaternion of the rotation by the rotation vector θ·axis. rotvec: (..., 3).
+    """Quaternion of the rotation by the rotation vector θ·axis.
 
     Smooth at rotvec = 0, where it returns the identity with the right derivative.
+
+    Args:
+        rotvec: (..., 3) rotation vectors (axis times angle in rad).
+
+    Returns:
+        (..., 4) unit quaternions (cos θ/2, sin(θ/2)·axis).
     """
     cos_half, sinc_half = _half_angle_terms(jnp.sum(rotvec * rotvec, axis=-1))
     return jnp.concatenate([cos_half[..., None], sinc_half[..., None] * rotvec], axis=-1)
 
 
 def from_axis_angle(axis, angle):
-    """Quaternion rotating by ``angle`` about ``axis``. axis: (..., 3) (any length > 0), angle: (...)."""
+    """Quaternion rotating by ``angle`` about ``axis``.
+
+    Args:
+        axis: (..., 3) rotation axes, any length > 0.
+        angle: (...) angles (rad), broadcast against ``axis[..., 0]``.
+
+    Returns:
+        (..., 4) unit quaternions (w, x, y, z).
+    """
     unit = safe_normalize(axis)
     return exp(unit * jnp.asarray(angle)[..., None])
 
 
 def integrate_first_order(q, angvel, h):
-    """q + h/2 (0, ω) ⊗ q, renormalised. q: (..., 4), angvel: (..., 3) world frame."""
+    """q + h/2 (0, ω) ⊗ q, renormalised.
+
+    Args:
+        q: (..., 4) unit quaternions (w, x, y, z), body to world.
+        angvel: (..., 3) world-frame angular velocities ω (rad/s).
+        h: () time step (s).
+
+    Returns:
+        (..., 4) the advanced unit quaternions.
+    """
     omega = jnp.concatenate([jnp.zeros_like(angvel[..., :1]), angvel], axis=-1)
     return normalize(q + (0.5 * h) * multiply(omega, q))
 
 
 def integrate_exp_map(q, angvel, h):
-    """exp(h ω) ⊗ q, renormalised against round-off. q: (..., 4), angvel: (..., 3) world frame."""
+    """exp(h ω) ⊗ q, renormalised against round-off.
+
+    Args:
+        q: (..., 4) unit quaternions (w, x, y, z), body to world.
+        angvel: (..., 3) world-frame angular velocities ω (rad/s).
+        h: () time step (s).
+
+    Returns:
+        (..., 4) the advanced unit quaternions.
+    """
     return normalize(multiply(exp(h * angvel), q))
 
 

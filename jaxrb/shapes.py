@@ -22,7 +22,12 @@ import numpy as np
 
 
 class ShapeError(ValueError):
-    """A bad shape field; ``field`` names it so callers can say which body."""
+    """A bad shape field; ``field`` names it so callers can say which body.
+
+    Args:
+        field: name of the offending field (e.g. ``"radius"``, ``"inertia"``).
+        message: what is wrong with it.
+    """
 
     def __init__(self, field: str, message: str):
         super().__init__(f"field {field!r}: {message}")
@@ -72,7 +77,11 @@ def _set(shape, field, value):
 
 @dataclasses.dataclass(frozen=True)
 class Sphere:
-    """3D sphere of ``radius`` centred on the body origin."""
+    """3D sphere of ``radius`` centred on the body origin.
+
+    Attributes:
+        radius: radius (m), > 0.
+    """
 
     radius: float
     dims = (3,)
@@ -83,7 +92,11 @@ class Sphere:
 
 @dataclasses.dataclass(frozen=True)
 class Circle:
-    """2D disc of ``radius`` centred on the body origin."""
+    """2D disc of ``radius`` centred on the body origin.
+
+    Attributes:
+        radius: radius (m), > 0.
+    """
 
     radius: float
     dims = (2,)
@@ -94,7 +107,12 @@ class Circle:
 
 @dataclasses.dataclass(frozen=True)
 class Box:
-    """Box centred on the body origin: ``half_extents`` has 3 entries in 3D, 2 in 2D."""
+    """Box centred on the body origin: ``half_extents`` has 3 entries in 3D, 2 in 2D.
+
+    Attributes:
+        half_extents: (3,) in 3D or (2,) in 2D half side lengths (m) along the
+            body axes, each > 0.
+    """
 
     half_extents: tuple
 
@@ -103,12 +121,18 @@ class Box:
 
     @property
     def dims(self):
+        """Dimensions this box can be used in: ``(3,)`` or ``(2,)`` from ``half_extents``."""
         return (np.shape(self.half_extents)[0],) if np.ndim(self.half_extents) == 1 else ()
 
 
 @dataclasses.dataclass(frozen=True)
 class Capsule:
-    """3D capsule: a segment of ``half_length`` along the body z axis, swept by ``radius``."""
+    """3D capsule: a segment of ``half_length`` along the body z axis, swept by ``radius``.
+
+    Attributes:
+        radius: radius of the swept sphere (m), > 0.
+        half_length: half the length of the core segment (m), >= 0 (0 is a sphere).
+    """
 
     radius: float
     half_length: float
@@ -124,6 +148,9 @@ class Polygon:
     """2D convex polygon; ``vertices`` (k, 2) in the body frame, either winding.
 
     Stored counter-clockwise. Its centre of mass need not be the body origin.
+
+    Attributes:
+        vertices: (k, 2) body-frame corners (m), k >= 3, strictly convex.
     """
 
     vertices: tuple
@@ -141,8 +168,11 @@ class Polygon:
 class PointMasses:
     """A body made of point masses, as in the classic formulation.
 
-    ``points`` (k, dim) are given in the body frame; ``masses`` (k,). Mass,
-    centre of mass and inertia are computed from them.
+    Mass, centre of mass and inertia are computed from the points.
+
+    Attributes:
+        points: (k, dim) body-frame positions (m); dim 3 or 2.
+        masses: (k,) positive masses (kg).
     """
 
     points: tuple
@@ -154,6 +184,7 @@ class PointMasses:
 
     @property
     def dims(self):
+        """Dimensions this body can be used in: ``(points.shape[1],)``."""
         return (np.shape(self.points)[1],) if np.ndim(self.points) == 2 else ()
 
 
@@ -243,6 +274,12 @@ def validate_shape(shape):
     wrong shape, polygons that are not strictly convex and point-mass sets whose
     ``masses`` do not match their ``points`` are rejected. Whether the inertia that
     results is singular is :func:`check_inertia`'s job.
+
+    Args:
+        shape: an instance of one of the shape classes.
+
+    Raises:
+        ShapeError: naming the bad field.
     """
     if isinstance(shape, (Sphere, Circle)):
         _positive("radius", shape.radius, ())
@@ -331,6 +368,14 @@ def check_inertia(inertia, dim: int, tolerance: float = 1e-9):
     3D: symmetric, positive definite (no zero principal moment, e.g. collinear
     point masses or a single point) and obeying the triangle inequality
     I1 + I2 >= I3 on principal moments. 2D: a positive scalar.
+
+    Args:
+        inertia: (3, 3) body-frame tensor in 3D, a scalar moment in 2D.
+        dim: 2 or 3.
+        tolerance: relative tolerance of the symmetry and definiteness tests.
+
+    Raises:
+        ShapeError: with field ``"inertia"``, saying why.
     """
     if dim == 2:
         value = float(inertia)

@@ -25,6 +25,15 @@ def make_step(model: Model) -> Callable:
     differentiate it. ``applied`` is an optional :class:`~jaxrb.types.Wrench`
     held constant over the step (see :func:`jaxrb.dynamics.wrench_at_points`
     for forces at points). Only the stages ``model`` needs are traced.
+
+    Args:
+        model: the static Model from ``Scene.build``; it decides what is compiled.
+
+    Returns:
+        The pure function ``step(state, params, applied=None) -> State``:
+        ``state`` a State (``pos`` (n, dim), ...), ``params`` the Params,
+        ``applied`` an optional Wrench (force (n, dim), torque (n, 3) or (n,)).
+        It advances ``state.time`` by ``params.dt``; ``step.model`` is ``model``.
     """
     substeps = model.substeps
     if model.contact == "none" or model.num_contacts == 0:

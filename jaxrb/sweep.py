@@ -179,7 +179,17 @@ def _compiled(fn: Callable, state_axis, params_axis, mesh: Optional[Mesh]) -> Ca
 
 
 def device_mesh(devices: Optional[Sequence] = None) -> Mesh:
-    """A one-axis mesh named :data:`BATCH_AXIS` over ``devices`` (default: ``jax.devices()``)."""
+    """A one-axis mesh named :data:`BATCH_AXIS` over ``devices`` (default: ``jax.devices()``).
+
+    Args:
+        devices: sequence of JAX devices, or None for all of ``jax.devices()``.
+
+    Returns:
+        A :class:`jax.sharding.Mesh` with the one axis :data:`BATCH_AXIS`.
+
+    Raises:
+        ValueError: ``devices`` is empty.
+    """
     devices = list(jax.devices() if devices is None else devices)
     if not devices:
         raise ValueError("sweep: 'shard' names no devices")

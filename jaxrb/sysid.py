@@ -127,6 +127,12 @@ class LossWeights:
     orientation and angular velocity squared angles (rad², (rad/s)²). For a
     body of size ℓ, an orientation weight near ℓ² makes a rotation count like
     the distance its surface moves.
+
+    Attributes:
+        position: weight of the mean squared position error.
+        orientation: weight of the mean squared orientation angle.
+        velocity: weight of the mean squared velocity error.
+        angvel: weight of the mean squared angular velocity error.
     """
 
     position: float = 1.0
@@ -136,11 +142,18 @@ class LossWeights:
 
 
 def quaternion_angle(quat, target):
-    """Rotation angle (rad) between two orientations, in [0, π]. quat, target: (..., 4) unit.
+    """Rotation angle (rad) between two orientations, in [0, π].
 
     θ = 2·atan2(|v|, |w|) with (w, v) = q̂* ⊗ q, so q and −q count as the same
     orientation. ``safe_norm`` keeps the gradient finite (zero) at θ = 0, where
     arccos(|q·q̂|) would divide by zero.
+
+    Args:
+        quat: (..., 4) unit quaternions (w, x, y, z).
+        target: (..., 4) unit quaternions q̂ to compare with.
+
+    Returns:
+        (...) angles in [0, π].
     """
     w = jnp.sum(quat * target, axis=-1)  # scalar part of conj(target) ⊗ quat
     tw, tv = target[..., :1], target[..., 1:]
@@ -153,7 +166,15 @@ def quaternion_angle(quat, target):
 
 
 def wrapped_angle(angle, target):
-    """angle − target wrapped into (−π, π]. angle, target: (...). Smooth except at ±π."""
+    """angle − target wrapped into (−π, π]. Smooth except at ±π.
+
+    Args:
+        angle: (...) angles (rad).
+        target: (...) angles (rad) to compare with.
+
+    Returns:
+        (...) the wrapped differences.
+    """
     difference = angle - target
     return jnp.arctan2(jnp.sin(difference), jnp.cos(difference))
 
@@ -458,6 +479,10 @@ def from_unconstrained(unconstrained: Mapping[str, Array], params: Params, field
         fields: the selection used for :func:`to_unconstrained`; default all of
             ``unconstrained``'s keys, whole.
         transforms: as for :func:`to_unconstrained`.
+
+    Returns:
+        ``params`` with each field of ``unconstrained`` replaced by its
+        transformed value (the field's own shape, e.g. (n,) or (n, 3, 3)).
     """
     masks = field_masks(params, fields if fields is not None else tuple(unconstrained))
     changes = {}
@@ -545,6 +570,21 @@ def make_objective(step: Callable, num_steps: int, every: int, *, weights=None, 
     ``loss(predicted, observed)`` (default :func:`trajectory_loss` with
     ``weights``). With ``batched``, ``initial_state``, ``observed`` and
     ``applied`` carry a leading axis B and the objective is the mean over B.
+
+    Args:
+        step: from :func:`jaxrb.make_step`.
+        num_steps: steps to roll out (a multiple of ``every``, at least the
+            largest observed step).
+        every: rollout save interval.
+        weights: :class:`LossWeights` (or dict) for the default loss.
+        loss: optional ``loss(predicted, observed) -> ()`` replacing
+            :func:`trajectory_loss`.
+        checkpoint: passed to :func:`jaxrb.rollout`.
+        batched: average over a leading batch axis B of the trajectories.
+
+    Returns:
+        ``objective(params, initial_state, observed, applied) -> ()``, pure and
+        differentiable in ``params``.
     """
     score = loss if loss is not None else (lambda predicted, observed: trajectory_loss(predicted, observed, weights))
 
@@ -607,6 +647,7 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
         callback: ``callback(step, loss, params)`` called every
             ``callback_every`` updates with the update count, the loss (float)
             and the Params at that point.
+        callback_every: how often (in updates) ``callback`` is called.
         print_fn: where ``log_every`` lines go (e.g. ``logging.info``).
 
     Returns:

@@ -28,7 +28,20 @@ INACTIVE, SEPARATING, RESTING, COLLIDING = 0, 1, 2, 3
 
 
 def check_option(name: str, value: Any, valid: tuple) -> str:
-    """Return ``value`` if it is one of ``valid``, else raise a ValueError listing them."""
+    """Return ``value`` if it is one of ``valid``, else raise a ValueError listing them.
+
+    Args:
+        name: what the option is called, for the message (e.g. ``"integrator"``).
+        value: the option given.
+        valid: the allowed values.
+
+    Returns:
+        ``value`` unchanged.
+
+    Raises:
+        ValueError: ``value`` is not in ``valid``; the message names the option
+            and lists the valid values.
+    """
     if value not in valid:
         raise ValueError(
             f"unknown {name} {value!r}; valid options are: {', '.join(map(repr, valid))}")
@@ -96,7 +109,13 @@ class Model:
         return sum(group.capacity * group.slots for group in self.pair_groups)
 
     def summary(self) -> str:
-        """A short human-readable account of what the compiled step contains."""
+        """A short human-readable account of what the compiled step contains.
+
+        Returns:
+            One line: dimension, body counts per shape kind, substeps and the
+            stages of the step in order (collision pair kinds and contact
+            slots, integrator, contact model and solver settings).
+        """
         kinds: dict[str, int] = {}
         for shape in self.shapes:
             kind = type(shape).__name__ if shape is not None else "MassOnly"

@@ -226,7 +226,14 @@ def _mix_friction(mu_a, mu_b):
 def detect(model: Model, params: Params, state: State) -> ContactSet:
     """Run the pair table on ``state``: every contact slot, classified.
 
-    Returns a :class:`ContactSet` with ``model.num_contacts`` rows.
+    Args:
+        model: the scene's Model (its ``pair_groups`` and ``planes``).
+        params: Params (friction, restitution, contact margin, bounce threshold, dt).
+        state: State (positions, orientations and velocities of the bodies).
+
+    Returns:
+        A :class:`ContactSet` with C = ``model.num_contacts`` rows (normal
+        (C, dim), point (C, dim), dist (C,), ...).
     """
     dtype = state.pos.dtype
     origin, rotation = shape_poses(model, params, state)
