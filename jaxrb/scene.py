@@ -18,6 +18,7 @@ Conventions:
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Optional
 
 import jax
@@ -105,6 +106,29 @@ class _Fields:
         return number
 
 
+def _given_arguments(arguments: dict, method) -> dict:
+    """The keyword arguments of one add_body/add_plane call that differ from the defaults.
+
+    Kept so a scene can be written to a file and replayed through the same
+    method (:mod:`jaxrb.scenefile`). Arrays are copied, so a caller mutating
+    its own array afterwards does not change the record.
+    """
+    defaults = {name: parameter.default for name, parameter in
+                inspect.signature(method).parameters.items()}
+    given = {}
+    for name, value in arguments.items():
+        if name == "self" or value is None:
+            continue
+        default = defaults.get(name)
+        if default is not None and np.ndim(value) == 0 and not isinstance(value, str) \
+                and type(value) is type(default) and value == default:
+            continue
+        if name != "shape" and not isinstance(value, (str, int, float)):
+            value = np.array(value)
+        given[name] = value
+    return given
+
+
 def _rotation_matrix(quat):
     w, x, y, z = quat
     return np.array([
@@ -116,6 +140,10 @@ def _rotation_matrix(quat):
 
 class Scene:
     """Collects bodies on the host, then builds the arrays the step runs on.
+
+    The arguments of every accepted ``add_body``/``add_plane`` call are kept
+    (those that differ from the defaults), so :mod:`jaxrb.scenefile` can save
+    the scene and replay it through the same methods.
 
     Args:
         dim: 2 or 3.
@@ -132,9 +160,13 @@ class Scene:
         self.gravity = _Fields("scene").array("gravity", gravity, (dim,))
         self._bodies: list[_Body] = []
         self._planes: list[_Plane] = []
+        # The arguments of each accepted add_body/add_plane call, for jaxrb.scenefile.
+        self._body_args: list[dict] = []
+        self._plane_args: list[dict] = []
 
     @property
     def num_bodies(self) -> int:
+        """Number of bodies added so far."""
         return len(self._bodies)
 
     def add_body(self, shape=None, *, mass=None, density=None, inertia=None, pos=None,
@@ -146,13 +178,13 @@ class Scene:
         Args:
             shape: a shape from :mod:`jaxrb.shapes`, or ``None`` for a body given
                 only ``mass`` and ``inertia``.
-            mass: total mass (kg). Scales the shape's inertia to match.
+            mass: scalar total mass (kg). Scales the shape's inertia to match.
             density: kg/m³ (3D) or kg/m² (2D); used when ``mass`` is not given.
             inertia: body-frame inertia about the centre of mass: (3,) principal
                 moments or (3, 3) in 3D, a scalar in 2D. Overrides the shape's.
             pos: (dim,) world position of the body frame origin.
             quat: (4,) orientation (w, x, y, z), 3D only; normalised here.
-            angle: orientation angle, 2D only.
+            angle: scalar orientation angle (rad), 2D only.
             vel: (dim,) linear velocity of the centre of mass.
             angvel: (3,) world-frame angular velocity in 3D, a scalar in 2D.
             friction: Coulomb coefficient >= 0.
@@ -161,7 +193,11 @@ class Scene:
             collision_category, collision_mask: bit masks; two shapes can touch
                 when each one's category meets the other's mask (Box2D's rule).
             name: used in messages; default ``"body<i>"``.
+
+        Returns:
+            The body's index i (its row in every (n, ...) array).
         """
+        arguments = dict(locals())
         dim, index = self.dim, len(self._bodies)
         name = name if name is not None else f"body{index}"
         check = _Fields(f"body {index} ({name!r})")
@@ -241,6 +277,7 @@ class Scene:
             linear_damping=check.scalar("linear_damping", linear_damping, low=0.0),
             angular_damping=check.scalar("angular_damping", angular_damping, low=0.0),
             collision_filter=_check_filter(check, collision_category, collision_mask)))
+        self._body_args.append(_given_arguments(arguments, Scene.add_body))
         return index
 
     def add_plane(self, normal=None, offset=0.0, *, friction=0.5, restitution=0.0,
@@ -255,7 +292,11 @@ class Scene:
             friction: Coulomb coefficient >= 0 (mixed with a body's as √(μ_A μ_B)).
             restitution: in [0, 1] (mixed as max(e_A, e_B)).
             collision_category, collision_mask: as in :meth:`add_body`.
+
+        Returns:
+            The plane's index (planes are numbered separately from bodies).
         """
+        arguments = dict(locals())
         check = _Fields(f"plane {len(self._planes)}")
         default = np.eye(self.dim)[-1]
         normal = check.array("normal", default if normal is None else normal, (self.dim,))
@@ -267,6 +308,7 @@ class Scene:
             friction=check.scalar("friction", friction, low=0.0),
             restitution=check.scalar("restitution", restitution, low=0.0, high=1.0),
             collision_filter=_check_filter(check, collision_category, collision_mask)))
+        self._plane_args.append(_given_arguments(arguments, Scene.add_plane))
         return len(self._planes) - 1
 
     def build(self, dt: float, integrator: str = "semi_implicit", orientation: Optional[str] = None,
@@ -302,6 +344,8 @@ class Scene:
             broadphase: ``"all_pairs"`` or ``"spheres"`` (bounding-sphere test,
                 then at most ``broadphase_capacity`` pairs per pair kind); default
                 all pairs up to 64 body–body pairs.
+            broadphase_capacity: pairs kept per pair kind by the ``"spheres"``
+                broadphase (default: all of them).
             contact_margin, bounce_threshold, contact_hertz,
                 contact_damping_ratio, max_push_velocity, friction_velocity:
                 initial values of the Params fields of the same names.
@@ -313,7 +357,8 @@ class Scene:
                 stack of small boxes on soft contacts buckles: a 10-box stack of
                 0.2 m cubes stands at 60 Hz but not at 30 Hz, a 20-box 2D stack
                 or a 100:1 mass ratio needs 8 substeps (120 Hz).
-            penalty_stiffness, penalty_damping: N/m and N·s/m per contact point.
+            penalty_stiffness, penalty_damping, penalty_frequency, penalty_damping_ratio:
+                N/m and N·s/m per contact point.
                 Or give ``penalty_frequency`` (Hz) and ``penalty_damping_ratio``
                 instead: k = m ω², c = 2ζ m ω with m the mean body mass. Without
                 any, the frequency is 0.03/h (h = dt/substeps; stable for
@@ -332,6 +377,11 @@ class Scene:
                 of sphere (circle) pairs at their time inside the substep
                 instead of at its end (see :mod:`jaxrb.contact.toi`); pairs of
                 other kinds keep the discrete treatment.
+
+        Returns:
+            ``(model, params, state)``: the static :class:`~jaxrb.types.Model`,
+            the differentiable :class:`~jaxrb.types.Params` and the initial
+            :class:`~jaxrb.types.State`.
         """
         check = _Fields("scene.build")
         if not self._bodies:
