@@ -23,12 +23,14 @@ def test_ci_runs_exactly_the_readme_test_command():
     assert readme_commands()[1] in ci_lines
 
 
-def test_demo_runs(capsys):
+def test_demo_runs(capsys, tmp_path):
     from jaxrb.cli import main
 
-    assert main(["demo"]) == 0
+    assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "flip times" in out and "range error" in out
+    assert "flip times" in out and "range error" in out and "resting height" in out
+    assert (tmp_path / "box_drop.png").stat().st_size > 1000
+    assert (tmp_path / "box_drop.gif").stat().st_size > 1000
 
 
 def test_readme_python_examples_run():
