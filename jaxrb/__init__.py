@@ -6,17 +6,19 @@ from jaxrb.collision.pairs import detect as detect_contacts
 from jaxrb.dynamics import (angular_momentum, kinetic_energy, potential_energy,
                             total_angular_momentum, world_inertia, wrench_at_points)
 from jaxrb.scene import Scene
+from jaxrb.scenefile import SceneFile, load_scene, save_scene
 from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere, point_mass_properties
 from jaxrb.step import make_step, rollout
 from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Model, Params, State, Wrench
 
-# Modules, not functions: rb.sweep.batch_params and rb.sysid.fit.
-from jaxrb import sweep, sysid  # noqa: E402  (they use the names above)
+# Modules, not functions: rb.sweep.batch_params, rb.sysid.fit, rb.render.animate, ...
+from jaxrb import analytic, render, scenefile, sweep, sysid  # noqa: E402  (they use the names above)
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "COLLIDING", "ContactSet", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
+    "COLLIDING", "ContactSet", "SceneFile", "analytic", "load_scene", "render", "save_scene",
+    "scenefile", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
     "Box", "Capsule", "Circle", "Model", "Params", "PointMasses", "Polygon", "Scene", "Sphere",
     "State", "Wrench", "angular_momentum", "kinetic_energy", "make_step", "point_mass_properties",
     "potential_energy", "quaternion", "rollout", "sweep", "sysid", "total_angular_momentum",

@@ -1,0 +1,454 @@
+"""jaxrb.render: pictures show the bodies where they are, contacts where detection finds
+them, animations and plots hold the right frames and numbers. Headless (Agg).
+
+Trajectories are stacked by hand (no rollout to compile), so the only compiled code
+is contact detection for the two contact scenes.
+"""
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from matplotlib import animation as mpl_animation  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from mpl_toolkits.mplot3d import proj3d  # noqa: E402
+from PIL import Image  # noqa: E402
+
+import jaxrb as rb  # noqa: E402
+import jaxrb.render as render  # noqa: E402
+
+# The reference contacts, jitted (eager detection compiles op by op and is slower).
+detect = jax.jit(rb.detect_contacts, static_argnums=0)
+
+EXTENT_3D = (-0.5, 0.5, -0.5, 0.5, -0.1, 0.6)
+EXTENT_2D = (-0.6, 0.6, -0.15, 0.6)
+
+
+@pytest.fixture(autouse=True)
+def close_figures():
+    yield
+    plt.close("all")
+
+
+def new_axes(dim, size=(5.0, 5.0)):
+    fig = Figure(figsize=size, dpi=100)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig)
+    return fig.add_subplot(projection="3d" if dim == 3 else None)
+
+
+def stack(states):
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *states)
+
+
+def artists_with_gid(ax, gid):
+    found = [a for a in ax.get_children() if a.get_gid() == gid]
+    assert found, f"no artist with gid {gid!r}"
+    return found
+
+
+def pixel_of(ax, point):
+    """(row, column) of a world point in figure_pixels' image (row 0 at the top)."""
+    if len(point) == 3:
+        x, y, _ = proj3d.proj_transform(*point, ax.get_proj())
+        point = (x, y)
+    x, y = ax.transData.transform(point)
+    height = ax.figure.canvas.get_width_height()[1]
+    return int(round(height - y)), int(round(x))
+
+
+def hide_and_render(ax, gid):
+    for artist in artists_with_gid(ax, gid):
+        artist.set_visible(False)
+    return render.figure_pixels(ax.figure)
+
+
+# --------------------------------------------------------------------------------------
+# Scenes
+
+
+@pytest.fixture(scope="module")
+def box_drop():
+    """A 0.2 m cube resting on the plane z = 0 (centre at z = 0.1)."""
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.5)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1))
+    return scene.build(dt=1 / 60)
+
+
+@pytest.fixture(scope="module")
+def planar():
+    """A 2D box (left) and a circle (right) resting on the half-plane y < 0."""
+    scene = rb.Scene(dim=2)
+    scene.add_plane(friction=0.5)
+    scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(-0.3, 0.1))
+    scene.add_body(rb.Circle(0.1), mass=1.0, pos=(0.3, 0.1), angle=0.7)
+    return scene.build(dt=1 / 60)
+
+
+@pytest.fixture(scope="module")
+def every_shape_3d():
+    scene = rb.Scene(dim=3)
+    scene.add_plane()
+    scene.add_body(rb.Box((0.1, 0.05, 0.08)), mass=1.0, pos=(0.0, 0.0, 0.5))
+    scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.4, 0.0, 0.3))
+    scene.add_body(rb.Capsule(0.05, 0.1), mass=1.0, pos=(-0.4, 0.0, 0.3),
+                   quat=(np.cos(0.4), np.sin(0.4), 0.0, 0.0))
+    scene.add_body(rb.PointMasses(points=[(0, 0, 0), (0.2, 0, 0), (0, 0.2, 0), (0, 0, 0.2)],
+                                  masses=[1.0, 1.0, 1.0, 3.0]), pos=(0.0, 0.4, 0.3),
+                   quat=(np.cos(0.3), 0.0, 0.0, np.sin(0.3)))
+    scene.add_body(None, mass=1.0, inertia=(0.1, 0.1, 0.1), pos=(0.0, -0.4, 0.3))
+    return scene.build(dt=1 / 60, contact="none")
+
+
+@pytest.fixture(scope="module")
+def every_shape_2d():
+    scene = rb.Scene(dim=2)
+    scene.add_plane()
+    scene.add_body(rb.Box((0.1, 0.05)), mass=1.0, pos=(0.0, 0.5), angle=0.2)
+    scene.add_body(rb.Circle(0.1), mass=1.0, pos=(0.4, 0.3), angle=0.7)
+    # A triangle whose centroid (0.1, 0.05) is not the body origin.
+    scene.add_body(rb.Polygon([(0.0, 0.0), (0.2, 0.0), (0.1, 0.15)]), mass=1.0,
+                   pos=(-0.4, 0.3), angle=0.5)
+    scene.add_body(rb.PointMasses(points=[(0, 0), (0.2, 0), (0, 0.2)], masses=[1.0, 1.0, 2.0]),
+                   pos=(0.0, 0.2), angle=-0.4)
+    scene.add_body(None, mass=1.0, inertia=0.1, pos=(0.6, 0.6))
+    return scene.build(dt=1 / 60, contact="none")
+
+
+def falling_box_traj(box_drop, heights):
+    """The box of ``box_drop`` at the given heights, falling at 1 m/s, 0.1 s apart."""
+    model, params, state = box_drop
+    states = [state.replace(pos=state.pos.at[0, 2].set(z), vel=state.vel.at[0, 2].set(-1.0),
+                            time=jnp.asarray(0.1 * (k + 1), dtype=state.time.dtype))
+              for k, z in enumerate(heights)]
+    return stack(states)
+
+
+# --------------------------------------------------------------------------------------
+# Bodies are drawn where they are
+
+
+def test_3d_box_pixels_only_where_the_box_projects(box_drop):
+    model, params, state = box_drop
+    ax = render.draw(model, params, state, ax=new_axes(3), extent=EXTENT_3D)
+    with_box = render.figure_pixels(ax.figure)
+    without_box = hide_and_render(ax, "jaxrb.body0")
+    changed = np.any(with_box[..., :3] != without_box[..., :3], axis=-1)
+
+    row, column = pixel_of(ax, (0.0, 0.0, 0.1))
+    assert changed[row - 2:row + 3, column - 2:column + 3].all(), "box centre not drawn"
+    corners = np.array([(x, y, z) for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (0.0, 0.2)])
+    rows, columns = zip(*(pixel_of(ax, c) for c in corners))
+    inside = np.zeros_like(changed)
+    inside[min(rows) - 3:max(rows) + 4, min(columns) - 3:max(columns) + 4] = True
+    assert changed.sum() > 200
+    assert not (changed & ~inside).any(), "pixels changed away from the box"
+    # Far above the box: untouched.
+    row, column = pixel_of(ax, (0.0, 0.0, 0.5))
+    assert not changed[row, column]
+
+
+def test_2d_box_and_circle_pixels(planar):
+    model, params, state = planar
+    ax = render.draw(model, params, state, ax=new_axes(2, (6.0, 4.0)), extent=EXTENT_2D,
+                     colors=["tab:blue", "tab:orange"])
+    pixels = render.figure_pixels(ax.figure).astype(float)
+    white = np.array([255.0, 255.0, 255.0])
+
+    def colour_at(point):
+        row, column = pixel_of(ax, point)
+        return pixels[row, column, :3]
+
+    # Inside the box and the disc the body colour shows (blended at alpha 0.65 on white).
+    for point, name in (((-0.3, 0.05), "tab:blue"), ((0.25, 0.05), "tab:orange")):
+        expected = (0.65 * np.array(to_rgba(name)[:3]) + 0.35) * 255.0
+        assert np.abs(colour_at(point) - expected).max() < 12.0, (point, colour_at(point), expected)
+    # Empty space stays white; the half-plane band is grey.
+    for point in ((0.0, 0.4), (-0.3, 0.35), (0.45, 0.1), (-0.55, 0.5)):
+        assert np.abs(colour_at(point) - white).max() < 1.0, point
+    band = colour_at((0.0, -0.03))
+    assert np.ptp(band) < 10.0 and band.max() < 235.0, band
+
+    # Hiding the circle changes only pixels inside its disc (plus its edge line).
+    before = pixels[..., :3]
+    after = hide_and_render(ax, "jaxrb.body1")[..., :3].astype(float)
+    changed = np.any(before != after, axis=-1)
+    rows, columns = np.nonzero(changed)
+    centre = np.array(pixel_of(ax, (0.3, 0.1)))
+    radius = abs(pixel_of(ax, (0.4, 0.1))[1] - centre[1])
+    distance = np.hypot(rows - centre[0], columns - centre[1])
+    assert changed.sum() > 0.8 * np.pi * radius ** 2
+    assert distance.max() <= radius + 3.0
+
+
+def test_rotation_and_com_offset_in_2d(every_shape_2d):
+    model, params, state = every_shape_2d
+    ax = render.draw(model, params, state, ax=new_axes(2))
+    # Circle: the radius line points along the body x axis.
+    line = [a for a in artists_with_gid(ax, "jaxrb.body1") if hasattr(a, "get_xydata")][0]
+    (x0, y0), (x1, y1) = line.get_xydata()
+    assert np.allclose([x0, y0], [0.4, 0.3])
+    assert np.allclose([x1, y1], [0.4 + 0.1 * np.cos(0.7), 0.3 + 0.1 * np.sin(0.7)])
+    # Polygon: drawn at body origin + R v, although the state holds its centroid.
+    patch = artists_with_gid(ax, "jaxrb.body2")[0]
+    c, s = np.cos(0.5), np.sin(0.5)
+    local = np.array([(0.0, 0.0), (0.2, 0.0), (0.1, 0.15)])
+    expected = np.array([-0.4, 0.3]) + local @ np.array([[c, -s], [s, c]]).T
+    drawn = patch.get_xy()[:3]
+    assert np.allclose(drawn, expected), (drawn, expected)
+    assert not np.allclose(np.asarray(state.pos[2]), [-0.4, 0.3])  # the state is the centroid
+
+
+def test_every_shape_draws_in_3d(every_shape_3d):
+    model, params, state = every_shape_3d
+    ax = render.draw(model, params, state, ax=new_axes(3), title="all shapes")
+    assert render.figure_pixels(ax.figure).shape == (500, 500, 4)
+    for body in range(model.num_bodies):
+        artists_with_gid(ax, f"jaxrb.body{body}")
+    artists_with_gid(ax, "jaxrb.plane0")
+    # The sphere mesh is centred on the sphere with the sphere's radius.
+    sphere = artists_with_gid(ax, "jaxrb.body1")[0]
+    vertices = sphere.jaxrb_faces.reshape(-1, 3)
+    radii = np.linalg.norm(vertices - np.array([0.4, 0.0, 0.3]), axis=1)
+    assert np.allclose(radii, 0.1, atol=1e-9)
+    # Point masses sit at pos + R p (the shape frame origin is the first point).
+    dots = [a for a in artists_with_gid(ax, "jaxrb.body3") if a.get_marker() == "o"][0]
+    drawn = np.stack(dots.get_data_3d(), axis=1)
+    c, s = np.cos(0.6), np.sin(0.6)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    points = np.array([(0, 0, 0), (0.2, 0, 0), (0, 0.2, 0), (0, 0, 0.2)])
+    assert np.allclose(drawn, np.array([0.0, 0.4, 0.3]) + points @ rotation.T)
+    # Automatic limits enclose every body.
+    assert ax.get_xlim()[0] < -0.45 and ax.get_xlim()[1] > 0.5
+    assert ax.get_zlim()[0] <= 0.0 and ax.get_zlim()[1] > 0.58
+
+
+def test_every_shape_draws_in_2d(every_shape_2d):
+    model, params, state = every_shape_2d
+    ax = render.draw(model, params, state, show_time=True, title="all shapes")
+    assert "t = 0.000 s" in ax.get_title()
+    pixels = render.figure_pixels(ax.figure)
+    assert pixels.dtype == np.uint8 and pixels.shape[2] == 4
+    for body in range(model.num_bodies):
+        artists_with_gid(ax, f"jaxrb.body{body}")
+    dots = [a for a in artists_with_gid(ax, "jaxrb.body3") if hasattr(a, "get_offsets")][0]
+    assert len(dots.get_offsets()) == 3
+    x_low, x_high = ax.get_xlim()
+    y_low, y_high = ax.get_ylim()
+    assert x_low < -0.45 and x_high > 0.6 and y_low < 0.0 and y_high > 0.6
+
+
+# --------------------------------------------------------------------------------------
+# Contacts
+
+
+def check_contact_artists(ax, found):
+    active = np.asarray(found.active)
+    count = int(active.sum())
+    assert count > 0
+    (dots,) = artists_with_gid(ax, "jaxrb.contact_points")
+    (arrows,) = artists_with_gid(ax, "jaxrb.contact_normals")
+    assert len(dots.get_offsets()) == count
+    assert arrows.jaxrb_segments.shape[:2] == (3 * count, 2)
+    render.figure_pixels(ax.figure)  # mplot3d fixes scatter colours (depth-sorted) when drawn
+    expected = [to_rgba(render.STATUS_COLORS[int(s)]) for s in np.asarray(found.status)[active]]
+    drawn = sorted(map(tuple, np.round(dots.get_facecolors(), 6)))
+    assert np.allclose(drawn, sorted(map(tuple, np.round(expected, 6))))
+    return count
+
+
+def test_contacts_3d(box_drop):
+    model, params, state = box_drop
+    resting = render.draw(model, params, state, ax=new_axes(3), contacts=True)
+    found = detect(model, params, state)
+    assert check_contact_artists(resting, found) == 4
+    assert set(np.asarray(found.status)[np.asarray(found.active)]) == {rb.RESTING}
+    # The same box moving down fast: four colliding contacts, drawn red.
+    falling = state.replace(vel=state.vel.at[0, 2].set(-2.0))
+    ax = render.draw(model, params, falling, ax=new_axes(3), contacts=True)
+    found = detect(model, params, falling)
+    assert set(np.asarray(found.status)[np.asarray(found.active)]) == {rb.COLLIDING}
+    check_contact_artists(ax, found)
+    # Without contacts=True nothing of the kind is drawn.
+    plain = render.draw(model, params, state)  # a new pyplot 3D figure
+    assert plain.name == "3d"
+    assert not [a for a in plain.get_children() if str(a.get_gid()).startswith("jaxrb.contact")]
+
+
+def test_contacts_2d(planar):
+    model, params, state = planar
+    ax = render.draw(model, params, state, ax=new_axes(2), contacts=True)
+    found = detect(model, params, state)
+    check_contact_artists(ax, found)
+    # Arrows start at the contact points and follow the normals (+y from the ground).
+    (arrows,) = artists_with_gid(ax, "jaxrb.contact_normals")
+    shafts = np.asarray(arrows.get_segments())[0::3]
+    assert np.allclose(shafts, arrows.jaxrb_segments[0::3])
+    active = np.asarray(found.active)
+    assert np.allclose(shafts[:, 0], np.asarray(found.point)[active])
+    direction = shafts[:, 1] - shafts[:, 0]
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    assert np.allclose(direction, np.asarray(found.normal)[active])
+
+
+# --------------------------------------------------------------------------------------
+# Animation and saving
+
+
+@pytest.fixture(scope="module")
+def box_animation(box_drop):
+    model, params, _ = box_drop
+    traj = falling_box_traj(box_drop, [0.5, 0.42, 0.34, 0.26, 0.18, 0.1])
+    anim = render.animate(model, params, traj, every=2, fps=10, title="drop", figsize=(3, 3),
+                          dpi=60)
+    return anim, traj
+
+
+def test_animation_frames_limits_and_title(box_animation):
+    anim, traj = box_animation
+    painter = anim.jaxrb_painter
+    ax = painter.ax
+    limits = (ax.get_xlim(), ax.get_ylim(), ax.get_zlim())
+    assert len(painter.frames) == 3  # every=2 of 6 states
+    assert np.allclose(painter.frames.time, [0.1, 0.3, 0.5])
+    for frame in range(3):
+        painter.set_frame(frame)
+        assert (ax.get_xlim(), ax.get_ylim(), ax.get_zlim()) == limits, "limits moved"
+        assert ax.get_title() == f"drop   t = {0.1 + 0.2 * frame:.3f} s"
+    # Limits hold the highest box (top face at 0.6) and the floor.
+    assert limits[2][0] <= 0.0 and limits[2][1] >= 0.6
+
+
+def test_save_gif_and_html(box_animation, tmp_path):
+    anim, _ = box_animation
+    gif = render.save_animation(anim, tmp_path / "drop.gif")
+    assert gif.exists()
+    with Image.open(gif) as image:
+        assert image.n_frames == 3
+        assert image.size == (180, 180)
+    html = render.save_animation(anim, tmp_path / "drop.html")
+    assert "<script" in html.read_text()
+    assert "<script" in render.to_html(anim)
+
+
+def test_save_rejects_unknown_suffix_and_missing_ffmpeg(box_animation, tmp_path, monkeypatch):
+    anim, _ = box_animation
+    with pytest.raises(ValueError, match=r"\.gif.*\.mp4.*\.html"):
+        render.save_animation(anim, tmp_path / "drop.avi")
+    monkeypatch.setattr(mpl_animation.writers, "is_available", lambda name: False)
+    with pytest.raises(ValueError, match="ffmpeg.*gif"):
+        render.save_animation(anim, tmp_path / "drop.mp4")
+    assert not (tmp_path / "drop.avi").exists() and not (tmp_path / "drop.mp4").exists()
+
+
+def test_animation_with_contacts_2d(planar, tmp_path):
+    model, params, state = planar
+    lifted = state.replace(pos=state.pos + jnp.array([0.0, 0.3]))  # nothing touches
+    traj = stack([lifted.replace(time=jnp.asarray(0.0)), state.replace(time=jnp.asarray(0.1))])
+    anim = render.animate(model, params, traj, contacts=True, figsize=(3, 2), dpi=50)
+    painter = anim.jaxrb_painter
+    counts = []
+    for frame in range(2):
+        painter.set_frame(frame)
+        (dots,) = artists_with_gid(painter.ax, "jaxrb.contact_points")
+        counts.append(len(dots.get_offsets()))
+    assert counts[0] == 0
+    assert counts[1] == int(detect(model, params, state).active.sum()) > 0
+    with Image.open(render.save_animation(anim, tmp_path / "planar.gif")) as image:
+        assert image.n_frames == 2
+
+
+# --------------------------------------------------------------------------------------
+# Bad input
+
+
+def test_batched_or_mismatched_input_is_rejected(box_drop, planar):
+    model, params, state = box_drop
+    batched = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), state)
+    with pytest.raises(ValueError, match="index"):
+        render.draw(model, params, batched)
+    with pytest.raises(ValueError, match="time axis"):
+        render.animate(model, params, state)
+    with pytest.raises(ValueError, match="index"):
+        render.animate(model, params, stack([batched, batched]))
+    with pytest.raises(ValueError, match="3D Axes"):
+        render.draw(model, params, state, ax=new_axes(2))
+    with pytest.raises(ValueError, match="'extent'"):
+        render.draw(model, params, state, extent=(0, 1, 0, 1))
+    with pytest.raises(ValueError, match="'colors'"):
+        render.draw(model, params, state, colors=["red", "blue"])
+    with pytest.raises(ValueError, match="'every'"):
+        render.animate(model, params, stack([state, state]), every=0)
+    model2, params2, state2 = planar
+    with pytest.raises(ValueError, match=r"state.pos"):
+        render.draw(model2, params2, state)
+    with pytest.raises(ValueError, match="com_offset"):
+        render.draw(model2, jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), params2), state2)
+
+
+# --------------------------------------------------------------------------------------
+# Plots over time
+
+
+def test_plot_energy_matches_closed_form(box_drop):
+    model, params, _ = box_drop
+    heights = [0.5, 0.4, 0.3]
+    traj = falling_box_traj(box_drop, heights)
+    ax = render.plot_energy(model, params, traj)
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    kinetic = np.full(3, 0.5 * 1.0 * 1.0 ** 2)  # m = 1 kg at 1 m/s, no spin
+    potential = 1.0 * 9.81 * np.array(heights)
+    assert np.allclose(lines["kinetic"].get_xdata(), [0.1, 0.2, 0.3])
+    assert np.allclose(lines["kinetic"].get_ydata(), kinetic)
+    assert np.allclose(lines["potential"].get_ydata(), potential)
+    assert np.allclose(lines["total"].get_ydata(), kinetic + potential)
+
+
+def test_plot_angular_momentum_3d_and_2d(box_drop, planar):
+    model, params, state = box_drop
+    spin = state.replace(angvel=state.angvel.at[0].set(jnp.array([0.0, 0.0, 3.0])),
+                         vel=state.vel.at[0].set(jnp.array([2.0, 0.0, 0.0])))
+    traj = stack([spin, spin.replace(time=jnp.asarray(0.5))])
+    ax = render.plot_angular_momentum(model, params, traj)
+    lines = {line.get_label(): line.get_ydata() for line in ax.get_lines()}
+    # Cube of 1 kg, side 0.2 m: I = m a²/6; orbital r × m v = (0, 0, 0.1) × (2, 0, 0)
+    # = (0, 0.2, 0).
+    spin_z = 1.0 * 0.2 ** 2 / 6.0 * 3.0
+    assert np.allclose(lines["L_x"], 0.0)
+    assert np.allclose(lines["L_y"], 0.2)
+    assert np.allclose(lines["L_z"], spin_z)
+    assert np.allclose(lines["|L|"], np.hypot(0.2, spin_z))
+
+    model2, params2, state2 = planar
+    turning = state2.replace(angvel=jnp.array([1.0, 0.0]))
+    ax = render.plot_angular_momentum(model2, params2, stack([turning, turning]))
+    (line,) = ax.get_lines()
+    assert np.allclose(line.get_ydata(), 1.0 * 0.2 ** 2 / 6.0)  # square: m (w² + h²)/12
+
+
+def test_plot_series():
+    times = np.linspace(0.0, 1.0, 5)
+    values = np.stack([times, 2 * times, 3 * times], axis=1)
+    ax = render.plot_series(times, values, labels=["a", "b", "c"], ylabel="ω (rad/s)")
+    assert [line.get_label() for line in ax.get_lines()] == ["a", "b", "c"]
+    assert np.allclose(ax.get_lines()[2].get_ydata(), 3 * times)
+    assert ax.get_ylabel() == "ω (rad/s)"
+    with pytest.raises(ValueError, match="'labels'"):
+        render.plot_series(times, values, labels=["a"])
+    with pytest.raises(ValueError, match="'values'"):
+        render.plot_series(times, values[:3])
+
+
+def test_figure_pixels_shape_and_content():
+    fig = Figure(figsize=(2.0, 1.0), dpi=50)
+    fig.patch.set_facecolor((1.0, 0.0, 0.0, 1.0))
+    pixels = render.figure_pixels(fig)  # a bare Figure: no Agg canvas attached
+    assert pixels.shape == (50, 100, 4) and pixels.dtype == np.uint8
+    assert (pixels[..., 0] == 255).all() and (pixels[..., 1] == 0).all()
