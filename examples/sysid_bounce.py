@@ -3,6 +3,8 @@
     python examples/sysid_bounce.py
 """
 
+import os
+
 import jax
 import numpy as np
 import optax
@@ -11,6 +13,7 @@ import jaxrb as rb
 from jaxrb import sysid
 
 jax.config.update("jax_enable_x64", True)
+QUICK = os.environ.get("JAXRB_QUICK") == "1"  # the test suite runs every example small
 
 scene = rb.Scene(dim=3)
 scene.add_plane(restitution=0.0)  # contacts mix restitution as max(e_A, e_B): the ball's decides
@@ -25,7 +28,7 @@ observed = sysid.observe(traj, every=20)
 observed = observed.replace(pos=observed.pos + 0.005 * np.random.default_rng(0).normal(size=observed.pos.shape))
 
 result = sysid.fit(step, truth.replace(restitution=truth.restitution * 0.5), state, observed,
-                   fields="restitution", optimizer=optax.adam(0.05), num_steps=500,
+                   fields="restitution", optimizer=optax.adam(0.05), num_steps=20 if QUICK else 500,
                    log_every=50)  # no early stop: the loss plateaus for ~150 steps on the way
 print(f"restitution: fitted {float(result.params.restitution[0]):.4f}, true 0.7, "
       f"{result.steps} steps, best loss {result.losses.min():.3e}")
