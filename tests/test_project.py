@@ -41,3 +41,13 @@ def test_readme_python_examples_run():
     for block in blocks:
         exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own docs
     assert namespace["traj"].pos.shape[0] == 840
+
+
+def test_readme_and_guide_links_point_at_files():
+    for document in ("README.md", "docs/guide.md"):
+        text = (ROOT / document).read_text()
+        targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+        assert targets, document
+        for target in targets:
+            if "://" not in target:
+                assert (ROOT / document).parent.joinpath(target).exists(), f"{document}: {target}"
