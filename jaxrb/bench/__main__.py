@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-SECTIONS = ("tumbling", "throughput", "contact", "gradients", "smoothing")
+SECTIONS = ("speed_error", "tumbling", "throughput", "contact", "gradients", "smoothing")
 
 #: What each mode runs. ``quick`` is meant to finish well inside two minutes on
 #: two CPU cores; ``full`` inside about ten.
@@ -34,8 +34,8 @@ SETTINGS = {
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog="python -m jaxrb.bench",
-        description="jaxrb benchmarks: integrator accuracy vs cost on a tumbling body, "
-                    "free-body and contact throughput, gradient memory and time, and the "
+        description="jaxrb benchmarks: speed against error on scenes with closed forms, "
+                    "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and time, and the "
                     "smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
                         help="fewer configurations and shorter horizons (well under 2 minutes)")
@@ -59,6 +59,9 @@ def main(argv=None) -> int:
 
     mode = "quick" if args.quick else "full"
     settings = {**SETTINGS[mode], **smoothing.SETTINGS[mode]}
+    from jaxrb.bench import speed_error
+
+    speed_error_settings = speed_error.QUICK if args.quick else speed_error.FULL
     log = free_body.stderr_log
     report = Report("jaxrb benchmark report")
     report.heading("Machine and settings")
@@ -81,6 +84,9 @@ def main(argv=None) -> int:
                       f"checkpointing, time at T = {settings['gradient_time_steps']}, float32"),
         "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
                       f"{', '.join(settings['smoothing_sweeps'])}, float64"),
+        "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: every "
+                        "integrator / contact model / step / substeps / iterations, error against the "
+                        "closed form, cost at batch 1 and body-steps/s at batch 1024"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -94,27 +100,37 @@ def main(argv=None) -> int:
         report.extend(text)
         report.paragraph(f"Section wall time: {watch.seconds:.1f} s.")
 
+    def run_speed_error():
+        return speed_error.speed_error_section({**settings, **speed_error_settings, "out_dir": args.out}, log)
+
+    def run_contact():
+        from jaxrb.bench import contact
+
+        return contact.contact_section(settings["contact_scenes"], settings["contact_batches"][0],
+                                       settings["contact_batches"][1], settings["contact_steps"],
+                                       repeats=settings["repeats"], log=log)
+
+    def run_gradients():
+        from jaxrb.bench import gradients
+
+        return gradients.gradients_section(settings, log)
+
+    runners = {
+        "speed_error": ("Speed against error", run_speed_error),
+        "tumbling": ("Torque-free tumbling in detail (intermediate-axis flip)", lambda: free_body.tumbling_section(
+            settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log)),
+        "throughput": ("Free-body throughput", lambda: free_body.throughput_section(
+            settings["throughput_integrators"], settings["batches"], settings["throughput_steps"],
+            settings["num_bodies"], repeats=settings["repeats"], log=log)),
+        "contact": ("Contact throughput", run_contact),
+        "gradients": ("Gradient memory and time", run_gradients),
+        "smoothing": ("Smoothing knobs: gradient bias and spread",
+                      lambda: smoothing.smoothing_section(settings, log=log, out_dir=args.out)),
+    }
     with Stopwatch() as total:
-        if "tumbling" in args.only:
-            section("1. Torque-free tumbling (intermediate-axis flip)", lambda: free_body.tumbling_section(
-                settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log))
-        if "throughput" in args.only:
-            section("2. Free-body throughput", lambda: free_body.throughput_section(
-                settings["throughput_integrators"], settings["batches"], settings["throughput_steps"],
-                settings["num_bodies"], repeats=settings["repeats"], log=log))
-        if "contact" in args.only:
-            from jaxrb.bench import contact
-
-            section("3. Contact throughput", lambda: contact.contact_section(
-                settings["contact_scenes"], settings["contact_batches"][0], settings["contact_batches"][1],
-                settings["contact_steps"], repeats=settings["repeats"], log=log))
-        if "gradients" in args.only:
-            from jaxrb.bench import gradients
-
-            section("4. Gradient memory and time", lambda: gradients.gradients_section(settings, log))
-        if "smoothing" in args.only:
-            section("5. Smoothing knobs: gradient bias and spread",
-                    lambda: smoothing.smoothing_section(settings, log=log, out_dir=args.out))
+        for number, name in enumerate([name for name in SECTIONS if name in args.only], start=1):
+            title, run = runners[name]
+            section(f"{number}. {title}", run)
     try:
         load = "{:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
     except (AttributeError, OSError):  # pragma: no cover
