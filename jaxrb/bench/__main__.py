@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-SECTIONS = ("speed_error", "tumbling", "throughput", "contact", "gradients", "smoothing")
+SECTIONS = ("speed_error", "hard_cases", "tumbling", "throughput", "contact", "gradients", "smoothing")
 
 #: What each mode runs. ``quick`` is meant to finish well inside two minutes on
 #: two CPU cores; ``full`` inside about ten.
@@ -87,6 +87,8 @@ def main(argv=None) -> int:
         "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: every "
                         "integrator / contact model / step / substeps / iterations, error against the "
                         "closed form, cost at batch 1 and body-steps/s at batch 1024"),
+        "hard_cases": ("tallest 3D stack, 2D pyramid, mass ratios, fastest impact, fast spin, "
+                       "overlap recovery, long rest (small sizes with --quick)"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -103,6 +105,12 @@ def main(argv=None) -> int:
     def run_speed_error():
         return speed_error.speed_error_section({**settings, **speed_error_settings, "out_dir": args.out}, log)
 
+    def run_hard_cases():
+        from jaxrb.bench import hard_cases
+
+        case_settings = hard_cases.QUICK if args.quick else hard_cases.FULL
+        return hard_cases.hard_cases_section({**case_settings, "out_dir": args.out}, log)
+
     def run_contact():
         from jaxrb.bench import contact
 
@@ -117,6 +125,7 @@ def main(argv=None) -> int:
 
     runners = {
         "speed_error": ("Speed against error", run_speed_error),
+        "hard_cases": ("Hard cases: stability, pass or fail", run_hard_cases),
         "tumbling": ("Torque-free tumbling in detail (intermediate-axis flip)", lambda: free_body.tumbling_section(
             settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log)),
         "throughput": ("Free-body throughput", lambda: free_body.throughput_section(
