@@ -10,7 +10,8 @@ import argparse
 import os
 import sys
 
-SECTIONS = ("speed_error", "hard_cases", "tumbling", "throughput", "contact", "gradients", "smoothing")
+SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
+            "smoothing")
 
 #: What each mode runs. ``quick`` is meant to finish well inside two minutes on
 #: two CPU cores; ``full`` inside about ten.
@@ -89,6 +90,8 @@ def main(argv=None) -> int:
                         "closed form, cost at batch 1 and body-steps/s at batch 1024"),
         "hard_cases": ("tallest 3D stack, 2D pyramid, mass ratios, fastest impact, fast spin, "
                        "overlap recovery, long rest (small sizes with --quick)"),
+        "peers": ("the same scenes in each installed peer (pip install -e \".[peers]\"), "
+                  "same run, ratios jaxrb / peer and the issue's targets"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -111,6 +114,11 @@ def main(argv=None) -> int:
         case_settings = hard_cases.QUICK if args.quick else hard_cases.FULL
         return hard_cases.hard_cases_section({**case_settings, "out_dir": args.out}, log)
 
+    def run_peers():
+        from jaxrb.bench import peers
+
+        return peers.peers_section(peers.QUICK if args.quick else peers.FULL, log)
+
     def run_contact():
         from jaxrb.bench import contact
 
@@ -126,6 +134,7 @@ def main(argv=None) -> int:
     runners = {
         "speed_error": ("Speed against error", run_speed_error),
         "hard_cases": ("Hard cases: stability, pass or fail", run_hard_cases),
+        "peers": ("Peers side by side: MuJoCo, MJX, Brax, Jax2D, pymunk", run_peers),
         "tumbling": ("Torque-free tumbling in detail (intermediate-axis flip)", lambda: free_body.tumbling_section(
             settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log)),
         "throughput": ("Free-body throughput", lambda: free_body.throughput_section(

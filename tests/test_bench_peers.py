@@ -1,0 +1,215 @@
+"""The peers benchmark: a tiny run with whatever peers are installed, and the ratio/target logic.
+
+In the dev environment MuJoCo is installed and Brax, MJX, Jax2D and pymunk are
+not: the section must then run MuJoCo C beside jaxrb and name every absent
+peer in a note. Where a peer is installed it must produce rows instead.
+"""
+
+import importlib.util
+import math
+
+import numpy as np
+import pytest
+
+from jaxrb.bench import contact, peers
+
+GRAVITY = 9.81
+TINY = dict(peers_scenes=("drop", "flip"), peers_engines=peers.ENGINES, peers_drop_batch=2,
+            peers_drop_steps=20, peers_mujoco_worlds=2, peers_drop_jaxrb=((4 * peers.PEER_STEP, 4),),
+            peers_flip_steps=(1 / 60,), peers_flip_horizon=4.0, peers_flip_configs=(("rk4", None),),
+            peers_repeats=1, peers_budget_s=0.5)
+MODULE_OF = {"mujoco": "mujoco", "mjx": "mujoco.mjx", "brax_spring": "brax", "brax_positional": "brax",
+             "jax2d": "jax2d", "pymunk": "pymunk"}
+
+
+def installed(engine):
+    try:
+        return importlib.util.find_spec(MODULE_OF[engine]) is not None
+    except ModuleNotFoundError:  # mujoco.mjx when mujoco itself is absent
+        return False
+
+
+@pytest.fixture(scope="module")
+def section():
+    """One tiny run of the section (drop and flip scenes; compiled once for the module)."""
+    if not installed("mujoco"):
+        pytest.skip("mujoco is not installed (it is in the dev extra)")
+    return peers.peers_section(TINY)
+
+
+def free_fall_height(z0, h, steps):
+    """Semi-implicit Euler free fall from rest (v += g h, then z += v h): z0 − g h² n(n+1)/2."""
+    return z0 - GRAVITY * h * h * steps * (steps + 1) / 2
+
+
+@pytest.mark.slow  # one shared tiny run of the section: ~15 s idle, ~60 s loaded
+def test_absent_peers_are_skipped_with_a_note(section):
+    text, results = section
+    engines_with_rows = {row.engine for row in results["rows"]}
+    for engine in peers.ENGINES:
+        if installed(engine):
+            if engine not in ("jax2d", "pymunk"):  # those two only run the pyramid, not in TINY
+                assert engine in engines_with_rows, (engine, results["skipped"])
+        else:
+            assert "not importable" in results["skipped"][engine]
+            assert peers.ENGINE_NAMES[engine] + ": not importable" in text
+    if not all(installed(e) for e in peers.ENGINES):
+        assert "**Skipped**" in text and 'pip install -e ".[peers]"' in text
+
+
+@pytest.mark.slow  # one shared tiny run of the section: ~15 s idle, ~60 s loaded
+def test_mujoco_rows_are_there_and_right(section):
+    _, results = section
+    rows = results["rows"]
+    one_world = peers._find(rows, "drop", "mujoco", batch=1)
+    many = peers._find(rows, "drop", "mujoco", batch=2)
+    assert one_world is not None and many is not None
+    # 20 steps of 2 ms is 40 ms of free fall from 0.5 m: a closed form for both engines.
+    expected = free_fall_height(peers.DROP_CENTRE, peers.PEER_STEP, 20) - peers.HALF
+    assert one_world.metrics["rest_offset"] == pytest.approx(expected, abs=1e-9)
+    shifts_up = np.mean(peers.world_shifts(2, 3)[:, 2])  # the worlds start 0-1 mm higher
+    assert many.metrics["rest_offset"] == pytest.approx(expected + shifts_up, abs=1e-9)
+    mine = peers._find(rows, "drop", "jaxrb")  # 20 steps of 8 ms, each 4 substeps of 2 ms
+    mine_expected = free_fall_height(peers.DROP_CENTRE, peers.PEER_STEP, 80) - peers.HALF
+    assert mine.metrics["rest_offset"] == pytest.approx(mine_expected + shifts_up, abs=2e-5)  # float32
+    for row in (one_world, many, mine):
+        assert math.isfinite(row.body_steps_per_s) and row.body_steps_per_s > 0
+    assert one_world.compile_s is None and mine.compile_s > 0
+    flip = peers._find_flip(rows, "mujoco", 1 / 60)
+    assert flip.metrics["flips"] == "1/1" and flip.metrics["flip_error"] < 1e-3
+    for dtype in ("float32", "float64"):
+        assert peers._best_flip(rows, 1 / 60, dtype) is not None
+
+
+@pytest.mark.slow  # one shared tiny run of the section: ~15 s idle, ~60 s loaded
+def test_markdown_is_well_formed(section):
+    text, results = section
+    assert "**Box drop**" in text and "**Torque-free flip**" in text and "**Issue-6 targets**" in text
+    assert "| MuJoCo C" in text
+    tables = [block for block in text.split("\n\n") if block.startswith("|")]
+    assert len(tables) == 3  # drop, flip, targets
+    for table in tables:
+        lines = table.splitlines()
+        counts = {line.replace("\\|", "").count("|") for line in lines}
+        assert len(counts) == 1, table  # every line has the same number of cells
+        assert set(lines[1].replace("|", "").split()) <= {"-" * n + ":" for n in range(1, 200)} | \
+            {":" + "-" * n for n in range(1, 200)}
+    statuses = {t.status for t in results["targets"]}
+    assert statuses <= {"PASS", "MISSED", "NOT MEASURED"}
+    assert all(f"**{t.status}**" in text for t in results["targets"])
+
+
+def test_ratio():
+    assert peers.ratio(10.0, 2.0) == 5.0
+    assert math.isnan(peers.ratio(1.0, 0.0))
+    assert math.isnan(peers.ratio(None, 1.0))
+    assert math.isnan(peers.ratio(float("inf"), 1.0))
+
+
+def row(scene, engine, rate, batch=1024, bodies=1, steps=1000, h=0.002, compile_s=1.0, setting="s", **metrics):
+    """A made-up result whose body-steps/s is ``rate``."""
+    return peers.PeerRow(scene, engine, setting, h, batch, bodies, steps, compile_s,
+                         batch * bodies * steps / rate, metrics)
+
+
+def by_text(targets, words):
+    found = [t for t in targets if words in t.text]
+    assert len(found) == 1, (words, [t.text for t in targets])
+    return found[0]
+
+
+def test_targets_on_made_up_numbers():
+    rows = [
+        row("drop", "jaxrb", 5.2e6, compile_s=2.0, rest_offset=-3e-4, rest_error=3e-4),
+        row("drop", "brax_spring", 1.06e6, compile_s=4.9, rest_offset=-1.2e-3, rest_error=1.2e-3),
+        row("drop", "mjx", 0.034e6, compile_s=7.7, rest_offset=0.0, rest_error=0.0),
+        row("stack", "jaxrb", 3.0e5, batch=16, bodies=10, sink=3e-3, drift=2e-4, stands=True),
+        row("stack", "brax_spring", 0.5e5, batch=16, bodies=10, sink=0.117, drift=0.0, stands=True),
+        row("pyramid", "jaxrb", 0.3e6, batch=16, bodies=55, sink=1e-3, drift=1e-4, stands=True),
+        row("pyramid", "jax2d", 11e3, batch=16, bodies=55, sink=5e-2, drift=1e-3, stands=True),
+        row("flip", "jaxrb", 1e5, h=1 / 60, setting="a", flip_error=4e-3, dtype="float32"),
+        row("flip", "jaxrb", 1e5, h=1 / 60, setting="b", flip_error=9e-3, dtype="float32"),
+        row("flip", "jaxrb", 1e5, h=1 / 240, setting="a", flip_error=6e-3, dtype="float32"),
+        row("flip", "jaxrb", 1e5, h=1 / 60, setting="a", flip_error=1e-4, dtype="float64"),
+        row("flip", "jaxrb", 1e5, h=1 / 240, setting="a", flip_error=3e-6, dtype="float64"),
+        row("flip", "mujoco", 1e5, h=1 / 60, setting="RK4", flip_error=6e-5, dtype="float64"),
+        row("flip", "mujoco", 1e5, h=1 / 240, setting="RK4", flip_error=2e-6, dtype="float64"),
+    ]
+    targets = peers.evaluate_targets(rows)
+    spring = by_text(targets, "≥ 5× Brax spring")
+    assert spring.status == "MISSED" and spring.measured.startswith("4.91×")  # 5.2 / 1.06
+    assert by_text(targets, "≥ 30× MJX").status == "PASS"  # 153×
+    assert by_text(targets, "rests within 0.5 mm").status == "PASS"
+    assert by_text(targets, "compile ≤ ½").status == "PASS"  # 2.0 ≤ 2.45
+    assert by_text(targets, "sinks < 2 mm").status == "MISSED"
+    assert by_text(targets, "drifts < 1 mm").status == "PASS"
+    assert by_text(targets, "stack ≥ 3× Brax").status == "PASS"  # 6×
+    assert by_text(targets, "20× Jax2D").status == "PASS"  # 27×
+    assert by_text(targets, "batch 256 > pymunk").status == "NOT MEASURED"
+    assert by_text(targets, "still standing").status == "PASS"
+    float32 = by_text(targets, "float32")
+    assert float32.status == "MISSED" and "4.00e-03" in float32.measured and "6.00e-03" in float32.measured
+    assert by_text(targets, "float64").status == "PASS"  # 1e-4 ≤ 1.2e-4 and 3e-6 ≤ 4e-6
+
+    rows[0] = row("drop", "jaxrb", 5.4e6, compile_s=2.5, rest_offset=6e-4, rest_error=6e-4)
+    rows[10] = row("flip", "jaxrb", 1e5, h=1 / 60, setting="a", flip_error=2e-4, dtype="float64")
+    targets = peers.evaluate_targets(rows)
+    assert by_text(targets, "≥ 5× Brax spring").status == "PASS"  # 5.09×
+    assert by_text(targets, "rests within 0.5 mm").status == "MISSED"
+    assert by_text(targets, "compile ≤ ½").status == "MISSED"  # 2.5 > 2.45
+    assert by_text(targets, "float64").status == "MISSED"  # 2e-4 > 1.2e-4
+    text = peers.targets_table(targets)
+    assert "**MISSED**" in text and "**PASS**" in text and "**NOT MEASURED**" in text
+
+
+def test_scene_table_gives_jaxrb_over_peer():
+    rows = [row("drop", "jaxrb", 4.0e6, setting="mine", rest_offset=1e-4, rest_error=1e-4),
+            row("drop", "brax_spring", 1.0e6, rest_offset=-1.2e-3, rest_error=1.2e-3)]
+    lines = peers.scene_table("drop", rows).splitlines()
+    assert "jaxrb mine b1024 / this" in lines[0]
+    assert lines[2].startswith("| jaxrb") and "1.00×" in lines[2]
+    assert lines[3].startswith("| Brax spring") and "4.00×" in lines[3] and "-1.200" in lines[3]
+
+
+def test_failing_peer_becomes_a_note(monkeypatch):
+    if not installed("mujoco"):
+        pytest.skip("mujoco is not installed")
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(peers, "jaxrb_stack", lambda batch, seconds, settings: row(
+        "stack", "jaxrb", 1e5, batch=batch, bodies=10, sink=1e-3, drift=1e-4, stands=True))
+    monkeypatch.setattr(peers, "mujoco_stack", broken)
+    text, results = peers.peers_section(dict(TINY, peers_scenes=("stack",), peers_engines=("mujoco",)))
+    assert [r.engine for r in results["rows"]] == ["jaxrb"]
+    assert "RuntimeError: boom" in results["skipped"]["mujoco (stack)"]
+    assert "boom" in text
+
+
+def test_bad_settings_are_value_errors():
+    with pytest.raises(ValueError, match="peers_engines"):
+        peers.load_peers(["bullet"])
+    with pytest.raises(ValueError, match="peers_scenes"):
+        peers.run_peers(dict(TINY, peers_scenes=("cloth",)))
+
+
+def test_mjcf_scenes_match_jaxrb():
+    mujoco = pytest.importorskip("mujoco")
+    stack = mujoco.MjModel.from_xml_string(peers.stack_mjcf())
+    assert stack.nbody == 1 + peers.STACK_COUNT and stack.opt.timestep == peers.PEER_STEP
+    np.testing.assert_allclose(stack.body_mass[1:], 1.0)
+    np.testing.assert_allclose(stack.qpos0[2::7], [0.1 + 0.2 * i for i in range(peers.STACK_COUNT)])
+    model, _, state = contact.stack3d_scene(peers.STACK_COUNT).build(dt=1e-3)
+    np.testing.assert_allclose(stack.qpos0.reshape(-1, 7)[:, :3], np.asarray(state.pos), atol=1e-12)
+    tumbler = mujoco.MjModel.from_xml_string(peers.tumbler_mjcf(1 / 240))
+    np.testing.assert_allclose(tumbler.body_inertia[1], (0.3, 0.35, 0.4))
+    assert tumbler.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+    assert len(peers.pyramid_centres()) == 55 and peers.PYRAMID_TOP == 54
+
+
+def test_world_shifts_are_those_of_the_contact_benchmark():
+    _, _, state = contact.drop_scene().build(dt=1e-3)
+    batched = contact._batched_state(state, 8)
+    np.testing.assert_allclose(np.asarray(batched.pos[:, 0] - state.pos[0]), peers.world_shifts(8, 3),
+                               atol=1e-12)
