@@ -696,6 +696,22 @@ def _apply_view(ax, dim, view, caller):
 # Public API
 
 
+def _painter(model: Model, params: Params, states: State, ax, caller: str, *, contacts, colors,
+             extent, view, title, show_time) -> "_Painter":
+    """The painter of :func:`draw` and :func:`animate`, showing frame 0 of ``states`` (T, ...) in ``ax``."""
+    frames = _Frames(model, params, states, contacts)
+    colors = _body_colors(colors, model.num_bodies, caller)
+    _check_axes(ax, model.dim, caller)
+    _apply_view(ax, model.dim, view, caller)
+    geometries = _geometries(model)
+    low, high = (_check_extent(extent, model.dim, caller) if extent is not None
+                 else _auto_extent(model, frames, geometries))
+    painter = _Painter(ax, model, frames, geometries, colors, low, high, title, show_time,
+                       legend=contacts)
+    painter.set_frame(0)
+    return painter
+
+
 def draw(model: Model, params: Params, state: State, ax=None, *, contacts: bool = False,
          colors=None, extent=None, title: Optional[str] = None, show_time: bool = False,
          view=None, figsize=None):
@@ -734,20 +750,11 @@ def draw(model: Model, params: Params, state: State, ax=None, *, contacts: bool 
     caller = "draw"
     _check_state(model, state, caller, time_axis=False)
     _check_params(model, params, caller)
-    frames = _Frames(model, params, _stack_frames(state), contacts)
-    colors = _body_colors(colors, model.num_bodies, caller)
     if ax is None:
         ax = _new_axes(model.dim, figsize)
-    else:
-        _check_axes(ax, model.dim, caller)
-    _apply_view(ax, model.dim, view, caller)
-    geometries = _geometries(model)
-    low, high = (_check_extent(extent, model.dim, caller) if extent is not None
-                 else _auto_extent(model, frames, geometries))
-    painter = _Painter(ax, model, frames, geometries, colors, low, high, title, show_time,
-                       legend=contacts)
-    painter.set_frame(0)
-    return ax
+    painter = _painter(model, params, _stack_frames(state), ax, caller, contacts=contacts,
+                       colors=colors, extent=extent, view=view, title=title, show_time=show_time)
+    return painter.ax
 
 
 def animate(model: Model, params: Params, traj: State, *, every: int = 1, fps: float = 30,
@@ -799,22 +806,13 @@ def animate(model: Model, params: Params, traj: State, *, every: int = 1, fps: f
     if not (isinstance(fps, (int, float, np.number)) and math.isfinite(fps) and fps > 0):
         raise ValueError(f"{caller}: 'fps' must be a positive number, got {fps!r}")
     shown = jax.tree_util.tree_map(lambda x: x[::every], traj)
-    frames = _Frames(model, params, shown, contacts)
-    colors = _body_colors(colors, model.num_bodies, caller)
     if ax is None:
         if figsize is None:
             figsize = (5.0, 5.0) if model.dim == 3 else (6.0, 4.5)
         ax = _new_axes(model.dim, figsize, pyplot=False, dpi=dpi)
-    else:
-        _check_axes(ax, model.dim, caller)
-    _apply_view(ax, model.dim, view, caller)
-    geometries = _geometries(model)
-    low, high = (_check_extent(extent, model.dim, caller) if extent is not None
-                 else _auto_extent(model, frames, geometries))
-    painter = _Painter(ax, model, frames, geometries, colors, low, high, title, True,
-                       legend=contacts)
-    painter.set_frame(0)
-    anim = FuncAnimation(ax.figure, painter.set_frame, frames=len(frames),
+    painter = _painter(model, params, shown, ax, caller, contacts=contacts, colors=colors,
+                       extent=extent, view=view, title=title, show_time=True)
+    anim = FuncAnimation(ax.figure, painter.set_frame, frames=len(painter.frames),
                          init_func=lambda: painter.set_frame(0), interval=1000.0 / fps,
                          blit=False, cache_frame_data=False)
     anim.jaxrb_fps = float(fps)
