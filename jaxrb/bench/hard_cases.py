@@ -548,6 +548,16 @@ def impact_scene():
     return scene
 
 
+def _fastest_passing(speeds, passed) -> float:
+    """The largest speed whose run and every slower run passed (0 if the slowest failed)."""
+    fastest = 0.0
+    for speed, ok in zip(speeds, passed):
+        if not ok:
+            break
+        fastest = float(speed)
+    return fastest
+
+
 def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResult:
     """Case 4: the fastest downward impact on a plane that does not tunnel.
 
@@ -589,26 +599,16 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
             holds = np.isfinite(final_z[:, body]) & (final_z[:, body] > 0.0)
             holding = [float(v) for v, ok in zip(speeds, holds) if ok]
             # Fastest speed with every slower one holding too (the tunnelling threshold).
-            below = 0.0
-            for v, ok in zip(speeds, holds):
-                if not ok:
-                    break
-                below = float(v)
-            fastest[(name, bool(toi))] = below
+            fastest[(name, bool(toi))] = _fastest_passing(speeds, holds)
             # Stricter: every speed up to v also comes to rest on the plane (e = 0, no rebound).
             rests = np.isfinite(final_z[:, body]) & (np.abs(final_z[:, body] - HALF) < REST_TOL)
-            calm = 0.0
-            for v, ok in zip(speeds, rests):
-                if not ok:
-                    break
-                calm = float(v)
-            resting[(name, bool(toi))] = calm
+            resting[(name, bool(toi))] = _fastest_passing(speeds, rests)
             curves[(name, bool(toi))] = (trace.times, trace.pos[:, :, body, 2])
             for v, ok, z in zip(speeds, holds, final_z[:, body]):
                 rows.append(dict(body=name, time_of_impact=bool(toi), speed=float(v), holds=bool(ok),
                                  final_z=float(z), rests=bool(abs(z - HALF) < REST_TOL)))
             _log(log, f"hard impact {name:>6} toi={str(bool(toi)):<5}: holds at {holding} m/s, "
-                      f"fastest before the first tunnel {below:g} m/s (compile {trace.compile_s:.1f} s)")
+                      f"fastest before the first tunnel {fastest[(name, bool(toi))]:g} m/s (compile {trace.compile_s:.1f} s)")
     sphere_ok = (("sphere", True) not in fastest) or fastest[("sphere", True)] >= float(speeds.max())
     box_key = ("box", False) if ("box", False) in fastest else ("box", True)
     passed = sphere_ok and fastest[box_key] >= settings["required_box_speed"]
