@@ -407,25 +407,26 @@ def _stack_metrics(initial_top, final_top) -> dict:
     return {"sink": sink, "drift": drift, "stands": stands}
 
 
-def jaxrb_stack(batch: int, seconds: float, settings: dict) -> PeerRow:
-    """jaxrb's 10-box column at its best setting for ``seconds``; sink and drift of the top box."""
+def _jaxrb_standing(scene: str, make_scene, top: int, batch: int, seconds: float,
+                    settings: dict) -> PeerRow:
+    """jaxrb at its best setting for ``seconds``; sink and drift of body ``top``."""
     dt, substeps = JAXRB_BEST["dt"], JAXRB_BEST["substeps"]
     num_steps = max(1, int(round(seconds / dt)))
-    timing, initial, final, bodies = _jaxrb_batched(lambda: contact.stack3d_scene(STACK_COUNT), dt,
-                                                    substeps, batch, num_steps, settings)
-    return PeerRow("stack", "jaxrb", _setting_text(dt, substeps), dt, batch, bodies, num_steps,
-                   timing.compile_s, timing.run_s, _stack_metrics(initial[:, -1], final[:, -1]))
+    timing, initial, final, bodies = _jaxrb_batched(make_scene, dt, substeps, batch, num_steps, settings)
+    return PeerRow(scene, "jaxrb", _setting_text(dt, substeps), dt, batch, bodies, num_steps,
+                   timing.compile_s, timing.run_s, _stack_metrics(initial[:, top], final[:, top]))
+
+
+def jaxrb_stack(batch: int, seconds: float, settings: dict) -> PeerRow:
+    """jaxrb's 10-box column at its best setting for ``seconds``; sink and drift of the top box."""
+    return _jaxrb_standing("stack", lambda: contact.stack3d_scene(STACK_COUNT), -1, batch, seconds,
+                           settings)
 
 
 def jaxrb_pyramid(batch: int, seconds: float, settings: dict) -> PeerRow:
     """jaxrb's 55-box 2D pyramid at its best setting for ``seconds``; does it stand."""
-    dt, substeps = JAXRB_BEST["dt"], JAXRB_BEST["substeps"]
-    num_steps = max(1, int(round(seconds / dt)))
-    timing, initial, final, bodies = _jaxrb_batched(lambda: contact.pyramid2d_scene(PYRAMID_ROWS), dt,
-                                                    substeps, batch, num_steps, settings)
-    return PeerRow("pyramid", "jaxrb", _setting_text(dt, substeps), dt, batch, bodies, num_steps,
-                   timing.compile_s, timing.run_s,
-                   _stack_metrics(initial[:, PYRAMID_TOP], final[:, PYRAMID_TOP]))
+    return _jaxrb_standing("pyramid", lambda: contact.pyramid2d_scene(PYRAMID_ROWS), PYRAMID_TOP, batch,
+                           seconds, settings)
 
 
 def jaxrb_flip(integrator: str, orientation: Optional[str], h: float, t_end: float, dtype,
