@@ -102,9 +102,9 @@ def carried_impulses(state: State, contacts):
 
 
 def clamp_to_disc(vector, limit):
-    """Each (C, dim) friction vector scaled down to length <= ``limit`` (C,): the Coulomb cone."""
+    """Each (..., k) friction vector scaled down to length <= ``limit`` (...): the Coulomb cone."""
     length = safe_norm(vector, keepdims=True)
-    limit = limit[:, None]
+    limit = limit[..., None]
     # >=, not >: with limit 0 the clamp is 0 for every vector, so its derivative
     # at the zero vector is 0, not the identity (an unloaded friction row leaked
     # gradient through a body resting above the plane).

@@ -97,6 +97,7 @@ class Prepared:
         inv_inertia: padded world inverse inertia, likewise.
         split: (n + 1,) mass-splitting factor k per body (contacts touching it
             under ``jacobi``, else 1): each contact sees k·m⁻¹ and k·I⁻¹.
+        maps: the :class:`RowMaps` of every row, for the sequential solver.
     """
 
     body_a: Array
@@ -120,6 +121,50 @@ class Prepared:
     inv_mass: Array
     inv_inertia: Array
     split: Array
+    maps: "RowMaps"
+
+
+@pytree_dataclass
+class RowMaps:
+    """How each row's relative velocity reads and moves its two bodies, fixed for the step.
+
+    Along a row direction d (index k: the normal, then the tangents) the
+    relative velocity is d·(v_a − v_b) + turn_a[k]·ω_a − turn_b[k]·ω_b, and an
+    impulse p along d changes v_a by p·m_a⁻¹·d, ω_a by p·spin_a[k], and B's
+    velocities by minus the same with B's maps. Computing r × d and I⁻¹(r × d)
+    once per step (as Box2D does) lets a solver row touch only its own two
+    bodies, with no 3×3 products and no scatter over all bodies.
+
+    Attributes:
+        turn_a, turn_b: tuple (one per direction) of (C, 3) r × d, (C,) in 2D.
+        spin_a, spin_b: tuple of (C, 3) I⁻¹(r × d) with the true world inverse
+            inertia, (C,) in 2D.
+        inv_mass_a, inv_mass_b: (C,) true inverse masses of each row's bodies.
+        coupling: (C,) change of the second tangent's speed per unit impulse
+            along the first (t₂·K·t₁, K the row's inverse mass matrix); 0 in 2D.
+    """
+
+    turn_a: tuple
+    turn_b: tuple
+    spin_a: tuple
+    spin_b: tuple
+    inv_mass_a: Array
+    inv_mass_b: Array
+    coupling: Array
+
+
+def _row_maps(model, a, b, arm_a, arm_b, directions, inv_mass, inv_inertia) -> RowMaps:
+    """:class:`RowMaps` of rows with bodies a, b (C,), arms (C, dim) and unit ``directions``."""
+    turn = lambda arm: tuple(moment(model, arm, d) for d in directions)
+    spin = lambda body, turns: tuple(apply_inverse_inertia(model, inv_inertia[body], t) for t in turns)
+    turn_a, turn_b = turn(arm_a), turn(arm_b)
+    spin_a, spin_b = spin(a, turn_a), spin(b, turn_b)
+    if model.dim == 3:
+        coupling = (jnp.sum(turn_a[2] * spin_a[1], axis=-1) + jnp.sum(turn_b[2] * spin_b[1], axis=-1))
+    else:
+        coupling = jnp.zeros_like(inv_mass[a])
+    return RowMaps(turn_a=turn_a, turn_b=turn_b, spin_a=spin_a, spin_b=spin_b,
+                   inv_mass_a=inv_mass[a], inv_mass_b=inv_mass[b], coupling=coupling)
 
 
 def _padded_rotations(model, state):
@@ -179,7 +224,8 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
         friction=contacts.friction, restitution=contacts.restitution,
         approach=contacts.normal_velocity, active=contacts.active,
         smoothing=normal_mass * params.impulse_smoothing,
-        inv_mass=inv_mass, inv_inertia=inv_inertia, split=split)
+        inv_mass=inv_mass, inv_inertia=inv_inertia, split=split,
+        maps=_row_maps(model, a, b, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia))
 
 
 def current_separation(model: Model, prep: Prepared, state: State):
@@ -215,13 +261,18 @@ def apply_impulses(model, prep, vel, angvel, impulse, rows=slice(None)):
 
 
 def _normal_update(prep, rel_vel, lam, separation, h, soft, rows):
-    """New accumulated normal impulse (r,) of some contact rows.
+    """New accumulated normal impulse (r,) of some contact rows (see :func:`_normal_impulse`)."""
+    vn = jnp.sum(rel_vel * prep.normal[rows], axis=-1)
+    return _normal_impulse(vn, lam[rows, 0], separation[rows], prep.normal_mass[rows], prep.smoothing[rows],
+                           prep.active[rows], h, soft)
+
+
+def _normal_impulse(vn, old, separation, normal_mass, smoothing, active, h, soft):
+    """New accumulated normal impulse of rows with normal speed ``vn`` (any shape, all alike).
 
     ``soft`` is None for the relax passes (rigid, no position bias), else the
     soft-constraint coefficients of :func:`soft_parameters`.
     """
-    vn = jnp.sum(rel_vel * prep.normal[rows], axis=-1)
-    separation = separation[rows]
     if soft is None:
         bias, mass_scale, impulse_scale = jnp.zeros_like(vn), 1.0, 0.0
     else:
@@ -232,9 +283,8 @@ def _normal_update(prep, rel_vel, lam, separation, h, soft, rows):
     bias = jnp.where(speculative, separation / h, bias)
     mass_scale = jnp.where(speculative, 1.0, mass_scale)
     impulse_scale = jnp.where(speculative, 0.0, impulse_scale)
-    old = lam[rows, 0]
-    delta = -prep.normal_mass[rows] * mass_scale * (vn + bias) - impulse_scale * old
-    return jnp.where(prep.active[rows], smooth_clamp(old + delta, prep.smoothing[rows]), 0.0)
+    delta = -normal_mass * mass_scale * (vn + bias) - impulse_scale * old
+    return jnp.where(active, smooth_clamp(old + delta, smoothing), 0.0)
 
 
 def smooth_clamp(impulse, width):
@@ -306,33 +356,97 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
         vel, angvel = apply_impulses(model, prep, vel, angvel, impulse)
         return vel, angvel, jnp.concatenate([normal[:, None], friction], axis=-1)
 
-    def one_contact(index, carry):
-        vel, angvel, lam = carry
-        rows = jnp.reshape(index, (1,))
-        rel_vel = _relative_velocity(model, prep, vel, angvel, rows)
-        normal = _normal_update(prep, rel_vel, lam, separation, h, soft, rows)
-        vel, angvel = apply_impulses(model, prep, vel, angvel,
-                                     (normal - lam[rows, 0])[:, None] * prep.normal[rows], rows)
-        rel_vel = _relative_velocity(model, prep, vel, angvel, rows)
-        friction = _friction_update(model, prep, rel_vel, lam, normal, rows)
-        vel, angvel = apply_impulses(model, prep, vel, angvel, friction - lam[rows, 1:], rows)
-        lam = lam.at[rows].set(jnp.concatenate([normal[:, None], friction], axis=-1))
-        return vel, angvel, lam
+    def one_contact(row, bodies, old, separation):
+        normal = _normal_impulse(_row_speed(row, 0, bodies), old[0], separation,
+                                 row.normal_mass, row.smoothing, row.active, h, soft)
+        bodies = _row_push(row, 0, bodies, normal - old[0])
+        # Friction in the row's tangent coordinates; the second tangent sees the
+        # first one's update through the coupling (a small block Gauss–Seidel).
+        old_friction = [jnp.sum(old[1:] * t) for t in row.tangents]
+        speeds = [_row_speed(row, 1 + k, bodies) for k in range(len(row.tangents))]
+        friction = [old_friction[0] - row.tangent_mass[0] * speeds[0]]
+        if model.dim == 3:
+            speed = speeds[1] + row.maps.coupling * (friction[0] - old_friction[0])
+            friction.append(old_friction[1] - row.tangent_mass[1] * speed)
+        friction = jnp.where(row.active, clamp_to_disc(jnp.stack(friction), row.friction * normal), 0.0)
+        for k in range(len(row.tangents)):
+            bodies = _row_push(row, 1 + k, bodies, friction[k] - old_friction[k])
+        world_friction = sum(f * t for f, t in zip(friction, row.tangents))
+        return bodies, jnp.concatenate([normal[None], world_friction])
 
-    return jax.lax.fori_loop(0, prep.normal.shape[0], _skip_inactive(prep, one_contact), (vel, angvel, lam))
+    return _sweep_rows(prep, one_contact, vel, angvel, lam, separation)
 
 
-def _skip_inactive(prep: Prepared, update):
-    """Wrap a per-row loop body so inactive rows cost a branch, not a solve.
+# One sequential row at a time. The row index is the loop counter, and the
+# rows' bodies come from the static pair table, so under vmap every read and
+# write below is a dynamic slice of the batched arrays, not a gather/scatter
+# (a culled pair table makes the bodies data, and then they are gathers).
 
-    Most rows of an all-pairs table are pairs that are not touching (a 10-box
-    stack has 440 rows, 80 of them active). Under vmap the branch becomes a
-    select and both sides run, so batched worlds gain nothing and lose nothing.
+def _take(array, index):
+    """array[index] along the first axis as a dynamic slice."""
+    return jax.lax.dynamic_index_in_dim(array, index, keepdims=False)
+
+
+def _row(prep: Prepared, index) -> Prepared:
+    """Row ``index`` of every per-row field of ``prep`` (the per-body fields left out)."""
+    per_row = prep.replace(inv_mass=None, inv_inertia=None, split=None)
+    return jax.tree_util.tree_map(lambda field: _take(field, index), per_row)
+
+
+def _read_bodies(vel, angvel, a, b):
+    """(v_a, ω_a, v_b, ω_b) of bodies a and b from padded velocities."""
+    return _take(vel, a), _take(angvel, a), _take(vel, b), _take(angvel, b)
+
+
+def _write_bodies(vel, angvel, a, b, bodies):
+    """Put :func:`_read_bodies`' values back (the two bodies of a row are never the same)."""
+    va, wa, vb, wb = bodies
+    put = lambda array, value, body: jax.lax.dynamic_update_index_in_dim(array, value, body, 0)
+    return put(put(vel, va, a), vb, b), put(put(angvel, wa, a), wb, b)
+
+
+def _row_speed(row, k, bodies):
+    """Relative velocity of a row along its direction k (0: normal, then the tangents)."""
+    va, wa, vb, wb = bodies
+    direction = (row.normal,) + tuple(row.tangents)
+    maps = row.maps
+    return jnp.sum(direction[k] * (va - vb)) + jnp.sum(maps.turn_a[k] * wa) - jnp.sum(maps.turn_b[k] * wb)
+
+
+def _row_push(row, k, bodies, impulse):
+    """The row's bodies after an impulse (scalar) along its direction k: +A, −B."""
+    va, wa, vb, wb = bodies
+    direction = ((row.normal,) + tuple(row.tangents))[k]
+    maps = row.maps
+    return (va + impulse * maps.inv_mass_a * direction, wa + impulse * maps.spin_a[k],
+            vb - impulse * maps.inv_mass_b * direction, wb - impulse * maps.spin_b[k])
+
+
+def _sweep_rows(prep: Prepared, update, vel, angvel, lam, separation=None):
+    """Run ``update(row, bodies, lam_row, separation_row) -> (bodies, lam_row)`` on each row in order.
+
+    vel, angvel: padded body velocities; lam: (C, 1 + dim). An inactive row is
+    skipped by a branch that carries the row's own values only: under vmap a
+    branch becomes a select of everything it carries, and a branch over the
+    whole carry made each row cost O(C) (a 10-box stack has 440 rows, 40 of
+    them active at rest). Unbatched, an inactive row costs its reads, the
+    branch and its writes.
     """
-    def body(index, carry):
-        return jax.lax.cond(prep.active[index], lambda c: update(index, c), lambda c: c, carry)
+    def solve_row(index, bodies, old):
+        gap = None if separation is None else _take(separation, index)
+        return update(_row(prep, index), bodies, old, gap)
 
-    return body
+    def body(index, carry):
+        vel, angvel, lam = carry
+        a, b = _take(prep.body_a, index), _take(prep.body_b, index)
+        bodies = _read_bodies(vel, angvel, a, b)
+        old = _take(lam, index)
+        bodies, new = jax.lax.cond(_take(prep.active, index), lambda c: solve_row(index, *c), lambda c: c,
+                                   (bodies, old))
+        vel, angvel = _write_bodies(vel, angvel, a, b, bodies)
+        return vel, angvel, jax.lax.dynamic_update_index_in_dim(lam, new, index, 0)
+
+    return jax.lax.fori_loop(0, prep.normal.shape[0], body, (vel, angvel, lam))
 
 
 def soft_parameters(params: Params, h):
@@ -347,23 +461,24 @@ def soft_parameters(params: Params, h):
 
 def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
     """Give contacts that hit faster than ``threshold`` an outgoing speed of −e·v_approach."""
-    def update(vel, angvel, lam, rows):
-        rel_vel = _relative_velocity(model, prep, vel, angvel, rows)
-        vn = jnp.sum(rel_vel * prep.normal[rows], axis=-1)
+    def new_normal(vn, old, row):
         # With impulse_smoothing every closing contact pushes a little, so it
         # bounces up to a substep early (apex +2 mm on the bounce bench). Gating
         # on the unsmoothed impulse instead was tried: the apex was right but
         # the gradient jumped (std of dA/dh0 41 against 2e-3), so the knob keeps
         # this bias.
-        bounce = prep.active[rows] & (prep.approach[rows] < -threshold) & (lam[rows, 0] > 0.0)
-        delta = -prep.normal_mass[rows] * (vn + prep.restitution[rows] * prep.approach[rows])
-        normal_new = jnp.where(bounce, jnp.maximum(lam[rows, 0] + delta, 0.0), lam[rows, 0])
-        impulse = (normal_new - lam[rows, 0])[:, None] * prep.normal[rows]
-        vel, angvel = apply_impulses(model, prep, vel, angvel, impulse, rows)
-        return vel, angvel, lam.at[rows, 0].set(normal_new)
+        bounce = row.active & (row.approach < -threshold) & (old > 0.0)
+        delta = -row.normal_mass * (vn + row.restitution * row.approach)
+        return jnp.where(bounce, jnp.maximum(old + delta, 0.0), old)
 
     if model.solver == "jacobi":
-        return update(vel, angvel, lam, slice(None))
-    return jax.lax.fori_loop(0, prep.normal.shape[0],
-                             _skip_inactive(prep, lambda i, c: update(*c, jnp.reshape(i, (1,)))),
-                             (vel, angvel, lam))
+        rel_vel = _relative_velocity(model, prep, vel, angvel)
+        normal = new_normal(jnp.sum(rel_vel * prep.normal, axis=-1), lam[:, 0], prep)
+        vel, angvel = apply_impulses(model, prep, vel, angvel, (normal - lam[:, 0])[:, None] * prep.normal)
+        return vel, angvel, lam.at[:, 0].set(normal)
+
+    def one_contact(row, bodies, old, _):
+        normal = new_normal(_row_speed(row, 0, bodies), old[0], row)
+        return _row_push(row, 0, bodies, normal - old[0]), old.at[0].set(normal)
+
+    return _sweep_rows(prep, one_contact, vel, angvel, lam)
