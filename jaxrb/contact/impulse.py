@@ -425,28 +425,29 @@ def _row_push(row, k, bodies, impulse):
 def _sweep_rows(prep: Prepared, update, vel, angvel, lam, separation=None):
     """Run ``update(row, bodies, lam_row, separation_row) -> (bodies, lam_row)`` on each row in order.
 
-    vel, angvel: padded body velocities; lam: (C, 1 + dim). An inactive row is
-    skipped by a branch that carries the row's own values only: under vmap a
-    branch becomes a select of everything it carries, and a branch over the
-    whole carry made each row cost O(C) (a 10-box stack has 440 rows, 40 of
-    them active at rest). Unbatched, an inactive row costs its reads, the
-    branch and its writes.
+    vel, angvel: padded body velocities; lam: (C, 1 + dim). The rows are a
+    scan whose carry is the body velocities only: each row's impulses come in
+    and go out as the scan's slices, so an inactive row can be skipped by a
+    branch over the bodies and its own impulses. Unbatched, an inactive row
+    then costs the branch and its slices (a 10-box stack has 440 rows, 40 of
+    them active at rest); under vmap the branch is a select of the bodies'
+    velocities, O(n) per row, where a branch that also carried the (C, 1 + dim)
+    impulses made each row O(C).
     """
-    def solve_row(index, bodies, old):
+    def solve_row(index, velocities, old):
+        row = _row(prep, index)
+        bodies = _read_bodies(*velocities, row.body_a, row.body_b)
         gap = None if separation is None else _take(separation, index)
-        return update(_row(prep, index), bodies, old, gap)
+        bodies, new = update(row, bodies, old, gap)
+        return _write_bodies(*velocities, row.body_a, row.body_b, bodies), new
 
-    def body(index, carry):
-        vel, angvel, lam = carry
-        a, b = _take(prep.body_a, index), _take(prep.body_b, index)
-        bodies = _read_bodies(vel, angvel, a, b)
-        old = _take(lam, index)
-        bodies, new = jax.lax.cond(_take(prep.active, index), lambda c: solve_row(index, *c), lambda c: c,
-                                   (bodies, old))
-        vel, angvel = _write_bodies(vel, angvel, a, b, bodies)
-        return vel, angvel, jax.lax.dynamic_update_index_in_dim(lam, new, index, 0)
+    def body(velocities, row_slice):
+        index, old, active = row_slice
+        return jax.lax.cond(active, lambda c: solve_row(index, *c), lambda c: c, (velocities, old))
 
-    return jax.lax.fori_loop(0, prep.normal.shape[0], body, (vel, angvel, lam))
+    rows = jnp.arange(prep.normal.shape[0])
+    (vel, angvel), lam = jax.lax.scan(body, (vel, angvel), (rows, lam, prep.active))
+    return vel, angvel, lam
 
 
 def soft_parameters(params: Params, h):
