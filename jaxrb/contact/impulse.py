@@ -377,8 +377,8 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
     return _sweep_rows(prep, one_contact, vel, angvel, lam, separation)
 
 
-# One sequential row at a time. The row index is the loop counter, and the
-# rows' bodies come from the static pair table, so under vmap every read and
+# One sequential row at a time. The row index comes from an unbatched arange
+# and the rows' bodies from the static pair table, so under vmap every read and
 # write below is a dynamic slice of the batched arrays, not a gather/scatter
 # (a culled pair table makes the bodies data, and then they are gathers).
 
