@@ -64,7 +64,7 @@ import jax.numpy as jnp
 from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
 from jaxrb.collision.pairs import round_sides
-from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc, contact_counts, effective_mass,
+from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc, contact_counts,
                                   moment, pad, relative_velocity, spin_cross, tangent_basis,
                                   world_inverse_inertia)
 from jaxrb.math import rotate2
@@ -156,15 +156,30 @@ class RowMaps:
 def _row_maps(model, a, b, arm_a, arm_b, directions, inv_mass, inv_inertia) -> RowMaps:
     """:class:`RowMaps` of rows with bodies a, b (C,), arms (C, dim) and unit ``directions``."""
     turn = lambda arm: tuple(moment(model, arm, d) for d in directions)
-    spin = lambda body, turns: tuple(apply_inverse_inertia(model, inv_inertia[body], t) for t in turns)
+    spin = lambda row_inertia, turns: tuple(apply_inverse_inertia(model, row_inertia, t) for t in turns)
     turn_a, turn_b = turn(arm_a), turn(arm_b)
-    spin_a, spin_b = spin(a, turn_a), spin(b, turn_b)
+    spin_a, spin_b = spin(inv_inertia[a], turn_a), spin(inv_inertia[b], turn_b)
     if model.dim == 3:
-        coupling = (jnp.sum(turn_a[2] * spin_a[1], axis=-1) + jnp.sum(turn_b[2] * spin_b[1], axis=-1))
+        coupling = _dot(model, turn_a[2], spin_a[1]) + _dot(model, turn_b[2], spin_b[1])
     else:
         coupling = jnp.zeros_like(inv_mass[a])
     return RowMaps(turn_a=turn_a, turn_b=turn_b, spin_a=spin_a, spin_b=spin_b,
                    inv_mass_a=inv_mass[a], inv_mass_b=inv_mass[b], coupling=coupling)
+
+
+def _dot(model, x, y):
+    """Row-wise x·y of (C, 3) vectors, or the product of (C,) 2D angular scalars."""
+    return jnp.sum(x * y, axis=-1) if model.dim == 3 else x * y
+
+
+def _effective_mass(model, maps: RowMaps, k, split_a, split_b):
+    """1 / (k_a(m_a⁻¹ + (r_a × d)·I_a⁻¹(r_a × d)) + k_b(...)) along row direction k, from the row maps.
+
+    split_a, split_b: (C,) mass-splitting factors of each row's bodies (1 unless ``jacobi``).
+    """
+    side_a = maps.inv_mass_a + _dot(model, maps.turn_a[k], maps.spin_a[k])
+    side_b = maps.inv_mass_b + _dot(model, maps.turn_b[k], maps.spin_b[k])
+    return 1.0 / (split_a * side_a + split_b * side_b)
 
 
 def _padded_rotations(model, state):
@@ -201,14 +216,13 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     inv_inertia = world_inverse_inertia(model, params, state)
     split = (jnp.maximum(contact_counts(model, contacts), 1.0) if model.solver == "jacobi"
              else jnp.ones_like(inv_mass))
-    split_mass, split_inertia = _split(model, inv_mass, inv_inertia, split)
     normal = contacts.normal
     tangents = tangent_basis(normal) if model.dim == 3 else (jnp.stack([-normal[:, 1], normal[:, 0]], -1),)
     a, b = contacts.body_a, contacts.body_b
-    masses = lambda direction: effective_mass(
-        model, split_mass[a], split_mass[b], split_inertia[a], split_inertia[b], arm_a, arm_b, direction)
+    maps = _row_maps(model, a, b, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia)
+    masses = [_effective_mass(model, maps, k, split[a], split[b]) for k in range(1 + len(tangents))]
     rotations = _padded_rotations(model, state)
-    normal_mass = masses(normal)
+    normal_mass = masses[0]
     round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
     centre = -pad(params.com_offset)  # shape centre from the centre of mass, body frame
     anchor_a = jnp.where(round_a, centre[a], _to_body(model, rotations, a, arm_a))
@@ -220,12 +234,11 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
         start_a=pos[a] + _to_world(model, rotations, a, anchor_a),
         start_b=pos[b] + _to_world(model, rotations, b, anchor_b),
         separation=contacts.dist, normal_mass=normal_mass,
-        tangent_mass=tuple(masses(t) for t in tangents),
+        tangent_mass=tuple(masses[1:]),
         friction=contacts.friction, restitution=contacts.restitution,
         approach=contacts.normal_velocity, active=contacts.active,
         smoothing=normal_mass * params.impulse_smoothing,
-        inv_mass=inv_mass, inv_inertia=inv_inertia, split=split,
-        maps=_row_maps(model, a, b, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia))
+        inv_mass=inv_mass, inv_inertia=inv_inertia, split=split, maps=maps)
 
 
 def current_separation(model: Model, prep: Prepared, state: State):
