@@ -28,7 +28,7 @@ import numpy as np
 from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
 from jaxrb.collision.pairs import build_pair_groups
 from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
-                         SOLVERS, Model, Params, State, check_option)
+                         QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option)
 
 DEFAULT_DENSITY = 1000.0
 ALL_BITS = 0xFFFFFFFF
@@ -326,9 +326,10 @@ class Scene:
 
         Args:
             dt: time step of one ``step`` call (s), > 0.
-            integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``.
-            orientation: ``"first_order"`` or ``"exp_map"`` (default). RK4 integrates
-                the quaternion ODE itself, so it takes no orientation option.
+            integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``,
+                ``"rk4_body"`` (see :mod:`jaxrb.integrators`).
+            orientation: ``"first_order"`` or ``"exp_map"`` (default). The RK4s integrate
+                the quaternion ODE themselves, so they take no orientation option.
             contact: ``"none"``, ``"penalty"`` or ``"impulse"``. Contact needs a
                 velocity-first integrator (``semi_implicit`` or
                 ``implicit_gyro``); the default is ``"impulse"`` when any pair
@@ -388,8 +389,8 @@ class Scene:
             raise ValueError("scene.build: the scene has no bodies; add one with add_body")
         dt = check.scalar("dt", dt, low=0.0, low_open=True)
         check_option("integrator", integrator, INTEGRATORS)
-        if orientation is not None and integrator == "rk4":
-            raise ValueError("scene.build: 'orientation' does not apply to integrator 'rk4', "
+        if orientation is not None and integrator in QUATERNION_ODE_INTEGRATORS:
+            raise ValueError(f"scene.build: 'orientation' does not apply to integrator {integrator!r}, "
                              "which integrates the quaternion ODE itself; leave it unset")
         orientation = check_option("orientation", "exp_map" if orientation is None else orientation,
                                    ORIENTATIONS)
@@ -489,5 +490,7 @@ class Scene:
             time=jnp.zeros((), dtype=dtype),
             contact_impulse=jnp.zeros((slots, 1 + dim), dtype=dtype) if slots else None,
             contact_key=jnp.full((slots,), -1, dtype=jnp.int32) if slots else None,
-            overflow=jnp.zeros((), dtype=bool) if slots else None)
+            overflow=jnp.zeros((), dtype=bool) if slots else None,
+            momentum_residual=(jnp.zeros((num, 3), dtype=dtype)
+                               if dim == 3 and integrator == "rk4_body" else None))
         return model, params, state

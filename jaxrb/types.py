@@ -16,7 +16,9 @@ from jaxrb._struct import pytree_dataclass
 
 Array = jax.Array
 
-INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4")
+INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body")
+#: Integrators that integrate the quaternion ODE themselves (no ``orientation`` option).
+QUATERNION_ODE_INTEGRATORS = ("rk4", "rk4_body")
 ORIENTATIONS = ("first_order", "exp_map")
 CONTACT_MODELS = ("none", "penalty", "impulse")
 SOLVERS = ("sequential", "jacobi")
@@ -124,7 +126,7 @@ class Model:
         stages = ["forces (gravity, constant and applied wrenches)"]
         if self.damping:
             stages.append("damping")
-        orientation = self.dim == 3 and self.integrator != "rk4"
+        orientation = self.dim == 3 and self.integrator not in QUATERNION_ODE_INTEGRATORS
         stages.append(f"integrator {self.integrator}"
                       + (f" + orientation {self.orientation}" if orientation else ""))
         if self.contact != "none":
@@ -227,6 +229,12 @@ class State:
             warm start is used only by the same contact.
         overflow: () bool, True if a broadphase had more overlapping pairs than
             its capacity in the last step (contacts were dropped).
+        momentum_residual: (n, 3) integrator ``rk4_body`` in 3D only (else
+            ``None``): the body-frame angular momentum that ``angvel`` cannot
+            hold in the state's precision, i.e. the rounding of each step's
+            update and of the world↔body round trip, carried to the next step
+            (compensated summation). Of the order of one ulp of I ω; a user
+            who replaces ``angvel`` may leave it as it is.
     """
 
     pos: Array
@@ -238,6 +246,7 @@ class State:
     contact_impulse: Optional[Array] = None
     contact_key: Optional[Array] = None
     overflow: Optional[Array] = None
+    momentum_residual: Optional[Array] = None
 
 
 @pytree_dataclass

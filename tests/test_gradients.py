@@ -163,7 +163,7 @@ def free_body_case(dim, integrator, orientation):
 
 # Every orientation update and velocity-phase variant once (each case is one compile).
 FREE_CASES = [(3, "semi_implicit", "exp_map"), (3, "implicit_gyro", "first_order"), (3, "rk4", None),
-              (2, "semi_implicit", None)]
+              (3, "rk4_body", None), (2, "semi_implicit", None)]
 
 
 @pytest.mark.parametrize("dim,integrator,orientation", FREE_CASES)

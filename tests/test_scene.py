@@ -348,7 +348,7 @@ def test_unknown_option_lists_valid_ones(option, valid):
 
 
 def test_documented_options_are_the_valid_ones():
-    assert set(INTEGRATORS) == {"euler", "semi_implicit", "implicit_gyro", "rk4"}
+    assert set(INTEGRATORS) == {"euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"}
     assert set(ORIENTATIONS) == {"first_order", "exp_map"}
     assert set(CONTACT_MODELS) == {"none", "penalty", "impulse"}
 
@@ -370,15 +370,19 @@ def test_empty_scene():
         rb.Scene(dim=3).build(dt=0.01)
 
 
+@pytest.mark.parametrize("integrator", ["rk4", "rk4_body"])
 @pytest.mark.parametrize("orientation", ["first_order", "exp_map"])
-def test_orientation_given_with_rk4(orientation):
-    with pytest.raises(ValueError, match="'orientation'.*'rk4'"):
-        scene3().build(dt=0.01, integrator="rk4", orientation=orientation)
+def test_orientation_given_with_rk4(orientation, integrator):
+    with pytest.raises(ValueError, match=f"'orientation'.*'{integrator}'"):
+        scene3().build(dt=0.01, integrator=integrator, orientation=orientation)
 
 
-def test_rk4_without_orientation_builds():
-    model, _, _ = scene3().build(dt=0.01, integrator="rk4")
-    assert model.integrator == "rk4"
+@pytest.mark.parametrize("integrator", ["rk4", "rk4_body"])
+def test_rk4_without_orientation_builds(integrator):
+    model, _, state = scene3().build(dt=0.01, integrator=integrator)
+    assert model.integrator == integrator
+    # Only rk4_body carries the compensated-summation residual of body-frame momentum.
+    assert (state.momentum_residual is not None) == (integrator == "rk4_body")
 
 
 def test_non_float_dtype():

@@ -9,7 +9,7 @@ from jax.test_util import check_grads
 import jaxrb as rb
 from conftest import assert_grad_matches_fd
 
-INTEGRATORS = ["euler", "semi_implicit", "implicit_gyro", "rk4"]
+INTEGRATORS = ["euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"]
 
 
 def mixed_scene(dim=3, integrator="semi_implicit", dtype=None, damping=0.0):
@@ -93,7 +93,7 @@ def test_check_grads_one_step(integrator, dim):
                 order=1, modes=("fwd", "rev"), atol=1e-6, rtol=1e-6, eps=1e-6)
 
 
-@pytest.mark.parametrize("integrator", ["semi_implicit", "implicit_gyro", "rk4"])
+@pytest.mark.parametrize("integrator", ["semi_implicit", "implicit_gyro", "rk4", "rk4_body"])
 def test_check_grads_fifty_step_rollout(integrator):
     model, params, state = mixed_scene(3, integrator)
     step = rb.make_step(model)
@@ -110,7 +110,7 @@ def test_check_grads_fifty_step_rollout(integrator):
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 @pytest.mark.parametrize("orientation", ["first_order", "exp_map"])
 def test_gradients_finite_at_zero_angular_velocity(integrator, orientation):
-    if integrator == "rk4":
+    if integrator in ("rk4", "rk4_body"):
         orientation = None
     scene = rb.Scene(dim=3)
     scene.add_body(rb.Box((0.1, 0.1, 0.2)), mass=1.0)

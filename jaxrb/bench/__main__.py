@@ -23,7 +23,7 @@ SETTINGS = {
                   contact_steps=100, gradient_scenes=("tumble",), gradient_memory_steps=(1000,),
                   gradient_time_steps=1000),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
-                 throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4"),
+                 throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
                  contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
                  contact_batches=(1024, 16), contact_steps=100,

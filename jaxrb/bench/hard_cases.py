@@ -110,7 +110,7 @@ DEFAULTS = {
     "impact": dict(speeds=(10.0, 30.0, 100.0, 300.0, 1000.0), time_of_impact=(False, True), seconds=1.0,
                    gap=0.9, build=dict(dt=DT, substeps=4), required_box_speed=10.0),
     "spin": dict(omega=100.0, seconds=10.0, dt=DT, integrator="implicit_gyro",
-                 others=("semi_implicit", "rk4", "euler"), tolerance=1e-6, every=1, chunk_steps=60),
+                 others=("semi_implicit", "rk4", "rk4_body", "euler"), tolerance=1e-6, every=1, chunk_steps=60),
     "overlap_recovery": dict(rows=10, overlap=0.25, seconds=5.0, build=dict(dt=DT, substeps=8),
                              push_speed=3.0, overlap_tol=1e-3, every=1, chunk_steps=60),
     "long_rest": dict(count=3, num_steps=100_000, build=dict(dt=DT, substeps=8), drift_tol=0.01,

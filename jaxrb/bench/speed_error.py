@@ -414,7 +414,7 @@ QUICK = dict(
     speed_error_scenes=SCENE_NAMES,
     speed_error_configs={
         "tumble": (tumble_grid((1 / 60, 1 / 240), ("float64",), (("rk4", None),))
-                   + tumble_grid((1 / 60,), ("float32",), (("rk4", None),))),
+                   + tumble_grid((1 / 60,), ("float32",), (("rk4", None), ("rk4_body", None)))),
         "bounce": [impulse(1 / 240, 1), penalty(1e-3)],
         "slide": [penalty(2e-3)],
         "roll": [impulse(1 / 120, 1), penalty(2e-3)],
