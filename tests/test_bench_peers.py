@@ -213,3 +213,16 @@ def test_world_shifts_are_those_of_the_contact_benchmark():
     batched = contact._batched_state(state, 8)
     np.testing.assert_allclose(np.asarray(batched.pos[:, 0] - state.pos[0]), peers.world_shifts(8, 3),
                                atol=1e-12)
+
+
+def test_stack_sink_is_measured_from_the_touching_height_not_the_lifted_start():
+    """A world lifted by its shift and resting exactly on the touching height has not sunk."""
+    shifts = peers.world_shifts(4, 3)
+    rest = np.array([0.0, 0.0, peers.STACK_TOP_REST])
+    initial = rest + shifts
+    final = initial.copy()
+    final[:, -1] = peers.STACK_TOP_REST - 1.5e-3  # every world ends 1.5 mm below touching
+    metrics = peers._stack_metrics(initial, final, peers.STACK_TOP_REST)
+    assert metrics["sink"] == pytest.approx(1.5e-3, abs=1e-12)
+    assert metrics["drift"] == 0.0 and metrics["stands"]
+    assert peers.STACK_TOP_REST == pytest.approx(1.9)  # ten 0.2 m boxes: the top centre at 1.9 m
