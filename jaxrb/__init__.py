@@ -2,6 +2,7 @@
 
 from jaxrb import quaternion
 from jaxrb.collision.pairs import ContactSet
+from jaxrb.compile import jit
 from jaxrb.collision.pairs import detect as detect_contacts
 from jaxrb.dynamics import (angular_momentum, kinetic_energy, potential_energy,
                             total_angular_momentum, world_inertia, wrench_at_points)
@@ -20,7 +21,7 @@ __all__ = [
     "COLLIDING", "ContactSet", "SceneFile", "analytic", "load_scene", "render", "save_scene",
     "scenefile", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
     "Box", "Capsule", "Circle", "Model", "Params", "PointMasses", "Polygon", "Scene", "Sphere",
-    "State", "Wrench", "angular_momentum", "kinetic_energy", "make_step", "point_mass_properties",
+    "State", "Wrench", "angular_momentum", "jit", "kinetic_energy", "make_step", "point_mass_properties",
     "potential_energy", "quaternion", "rollout", "sweep", "sysid", "total_angular_momentum",
     "world_inertia", "wrench_at_points",
 ]

@@ -45,7 +45,7 @@ def tumbling_report(integrator: str = "rk4", dt: float = 1.0 / 240.0, seconds: f
     scene.add_body(rb.Box((0.5, 0.3, 0.2)), mass=1.0, inertia=(0.3, 0.35, 0.4), angvel=(0.1, 15.0, 0.1))
     model, params, state = scene.build(dt=dt, integrator=integrator, dtype=dtype)
     step = rb.make_step(model)
-    simulate = jax.jit(lambda s, p: rb.rollout(step, s, p, int(round(seconds / dt))))
+    simulate = rb.jit(lambda s, p: rb.rollout(step, s, p, int(round(seconds / dt))))
     start = time.perf_counter()
     traj = jax.block_until_ready(simulate(state, params))
     elapsed = time.perf_counter() - start
@@ -89,7 +89,7 @@ def projectile_report(batch: int = 1024, speed: float = 10.0, dt: float = 1e-3) 
     states = jax.vmap(lambda a: state.replace(vel=speed * jnp.stack([jnp.cos(a), jnp.sin(a)])[None]))(angles)
     flight_steps = int(np.ceil(2 * speed / g / dt)) + 1
     step = rb.make_step(model)
-    simulate = jax.jit(jax.vmap(lambda s: rb.rollout(step, s, params, flight_steps), in_axes=0))
+    simulate = rb.jit(jax.vmap(lambda s: rb.rollout(step, s, params, flight_steps), in_axes=0))
     start = time.perf_counter()
     traj = jax.block_until_ready(simulate(states))
     elapsed = time.perf_counter() - start
@@ -127,7 +127,7 @@ def box_drop_report(out_dir: pathlib.Path, seconds: float = 2.0) -> str:
     step = rb.make_step(model)
     start = time.perf_counter()
     traj = jax.block_until_ready(
-        jax.jit(lambda s, p: rb.rollout(step, s, p, int(round(seconds * 60))))(state, params))
+        rb.jit(lambda s, p: rb.rollout(step, s, p, int(round(seconds * 60))))(state, params))
     elapsed = time.perf_counter() - start
     out_dir.mkdir(parents=True, exist_ok=True)
     figure = rb.render.draw(model, params, jax.tree_util.tree_map(lambda a: a[-1], traj),

@@ -58,6 +58,7 @@ import jax
 import numpy as np
 
 from jaxrb.collision.pairs import detect
+from jaxrb.compile import jit
 from jaxrb.dynamics import kinetic_energy, potential_energy, total_angular_momentum
 from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere
 from jaxrb.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
@@ -181,7 +182,7 @@ def _rotation_matrices(model: Model, states: State) -> np.ndarray:
 @functools.lru_cache(maxsize=16)
 def _contact_detector(model: Model):
     """Jitted detection over a leading frame axis, compiled once per Model."""
-    return jax.jit(jax.vmap(lambda params, state: detect(model, params, state), in_axes=(None, 0)))
+    return jit(jax.vmap(lambda params, state: detect(model, params, state), in_axes=(None, 0)))
 
 
 class _Frames:

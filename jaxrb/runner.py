@@ -19,6 +19,7 @@ import jax
 import numpy as np
 
 from jaxrb import render
+from jaxrb.compile import jit
 from jaxrb.dynamics import kinetic_energy, potential_energy
 from jaxrb.scenefile import load_scene
 from jaxrb.step import make_step, rollout
@@ -66,7 +67,7 @@ def simulate(step: Callable, state, params, num_steps: int, every: int = 1,
     last_line = start
     for length in _segments(num_steps, every):
         if length not in compiled:
-            compiled[length] = jax.jit(lambda s, p, n=length: rollout(step, s, p, n, every=every))
+            compiled[length] = jit(lambda s, p, n=length: rollout(step, s, p, n, every=every))
         segment = jax.block_until_ready(compiled[length](state, params))
         state = jax.tree_util.tree_map(lambda a: a[-1], segment)
         pieces.append(jax.tree_util.tree_map(np.asarray, segment))

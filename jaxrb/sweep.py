@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxrb.compile import jit
 from jaxrb.step import rollout
 from jaxrb.types import Params, State
 
@@ -174,8 +175,8 @@ def _compiled(fn: Callable, state_axis, params_axis, mesh: Optional[Mesh]) -> Ca
     """``jit(vmap(fn))``, cached so a repeated sweep of the same ``fn`` does not recompile."""
     batched = jax.vmap(fn, in_axes=(state_axis, params_axis))
     if mesh is None:
-        return jax.jit(batched)
-    return jax.jit(batched, out_shardings=NamedSharding(mesh, PartitionSpec(BATCH_AXIS)))
+        return jit(batched)
+    return jit(batched, out_shardings=NamedSharding(mesh, PartitionSpec(BATCH_AXIS)))
 
 
 def device_mesh(devices: Optional[Sequence] = None) -> Mesh:

@@ -47,7 +47,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from typing import Any, Callable, Mapping, NamedTuple, Optional, Sequence, Union
+from typing import Callable, Mapping, NamedTuple, Optional, Sequence, Union
 
 import jax
 import jax.numpy as jnp
@@ -55,6 +55,7 @@ import numpy as np
 import optax
 
 from jaxrb._struct import pytree_dataclass
+from jaxrb.compile import jit
 from jaxrb.math import safe_norm
 from jaxrb.step import rollout
 from jaxrb.types import Params, State, Wrench
@@ -688,13 +689,13 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
     def total_loss(u, base, state, obs, wrench):
         return objective(from_unconstrained(u, base, masks, transforms), state, obs, wrench)
 
-    @jax.jit
+    @jit
     def update(u, opt_state, base, state, obs, wrench):
         value, grads = jax.value_and_grad(total_loss)(u, base, state, obs, wrench)
         updates, opt_state = optimizer.update(grads, opt_state, u)
         return optax.apply_updates(u, updates), opt_state, value
 
-    constrain = jax.jit(lambda u, base: from_unconstrained(u, base, masks, transforms))
+    constrain = jit(lambda u, base: from_unconstrained(u, base, masks, transforms))
 
     opt_state = optimizer.init(unconstrained)
     losses, best_loss, best_u, best_step = [], math.inf, unconstrained, 0

@@ -15,7 +15,7 @@ from jaxrb.bench import contact, peers
 
 GRAVITY = 9.81
 TINY = dict(peers_scenes=("drop", "flip"), peers_engines=peers.ENGINES, peers_drop_batch=2,
-            peers_drop_steps=20, peers_mujoco_worlds=2, peers_drop_jaxrb=((4 * peers.PEER_STEP, 4),),
+            peers_drop_steps=20, peers_mujoco_worlds=2, peers_drop_jaxrb=(("impulse", 4 * peers.PEER_STEP, 4), ("penalty", peers.PEER_STEP, 1)),
             peers_flip_steps=(1 / 60,), peers_flip_horizon=4.0, peers_flip_configs=(("rk4", None),),
             peers_repeats=1, peers_budget_s=0.5)
 MODULE_OF = {"mujoco": "mujoco", "mjx": "mujoco.mjx", "brax_spring": "brax", "brax_positional": "brax",
@@ -72,7 +72,10 @@ def test_mujoco_rows_are_there_and_right(section):
     mine = peers._find(rows, "drop", "jaxrb")  # 20 steps of 8 ms, each 4 substeps of 2 ms
     mine_expected = free_fall_height(peers.DROP_CENTRE, peers.PEER_STEP, 80) - peers.HALF
     assert mine.metrics["rest_offset"] == pytest.approx(mine_expected + shifts_up, abs=2e-5)  # float32
-    for row in (one_world, many, mine):
+    penalty = [r for r in rows if r.engine == "jaxrb" and r.setting.startswith("penalty")]
+    assert len(penalty) == 1  # 20 steps of 2 ms, no contact yet: the same free fall as MuJoCo's
+    assert penalty[0].metrics["rest_offset"] == pytest.approx(expected + shifts_up, abs=2e-5)
+    for row in (one_world, many, mine, penalty[0]):
         assert math.isfinite(row.body_steps_per_s) and row.body_steps_per_s > 0
     assert one_world.compile_s is None and mine.compile_s > 0
     flip = peers._find_flip(rows, "mujoco", 1 / 60)

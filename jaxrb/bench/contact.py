@@ -35,6 +35,7 @@ import numpy as np
 import jaxrb as rb
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 from jaxrb.bench.timing import time_jitted
+from jaxrb.compile import jit
 
 HALF = 0.1
 DROP_CENTRE = 0.5  # m, initial centre height of the dropped box
@@ -152,7 +153,7 @@ def _final_state_fn(step, num_steps):
 def resting_height_error(model, params, state, seconds: float = 1.0) -> float:
     """|z − 0.1 m| of the dropped box after ``seconds`` (batch 1)."""
     num_steps = int(round(seconds / float(params.dt)))
-    final = jax.jit(_final_state_fn(rb.make_step(model), num_steps))(state, params)
+    final = jit(_final_state_fn(rb.make_step(model), num_steps))(state, params)
     return abs(float(final.pos[0, -1]) - RESTING_HEIGHT)
 
 

@@ -85,6 +85,7 @@ import numpy as np
 import jaxrb as rb
 from jaxrb.bench.contact import pyramid2d_scene
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_step, markdown_table
+from jaxrb.compile import jit
 
 HALF = 0.1  # half side of every box (m)
 BOX_MASS = 1.0
@@ -215,7 +216,7 @@ def _chunk_runner(model, state, params, every: int, samples: int, batched: bool 
     if batched:
         chunk = jax.vmap(chunk, in_axes=(0, None))
     start = time.perf_counter()
-    compiled = jax.jit(chunk).lower(state, params).compile()
+    compiled = jit(chunk).lower(state, params).compile()
     _RUNNERS[key] = compiled
     return compiled, time.perf_counter() - start
 

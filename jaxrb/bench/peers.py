@@ -9,7 +9,8 @@ peer's own scene API (Jax2D, pymunk):
 
 * **drop**: a 0.2 m box (1 kg) released with its centre at 0.5 m above a
   plane, friction 0.5. Peers step at h = 2 ms; jaxrb runs its own best setting
-  (impulse contact, dt = 1/60 s, 4 substeps) *and* h = 2 ms (1 substep).
+  (impulse contact, dt = 1/60 s, 4 substeps) *and* h = 2 ms (1 substep) with
+  impulse and with penalty contact (:data:`DROP_JAXRB`).
   Figures: body-steps/s at a batch of worlds, compile time, and the resting
   height z − 0.1 m after the rollout (mean over worlds; its largest
   magnitude is what the target checks).
@@ -93,10 +94,15 @@ ENGINE_NAMES = {"jaxrb": "jaxrb", "mujoco": "MuJoCo C", "mjx": "MJX", "brax_spri
 SCENE_TITLES = {"drop": "Box drop", "stack": "10-box stack", "pyramid": "2D 10-row pyramid (55 boxes)",
                 "flip": "Torque-free flip"}
 
+#: jaxrb's box-drop rows: (contact model, dt, substeps). Its own impulse setting, and
+#: both contact models at the peers' h = 2 ms (penalty being what Brax spring is).
+DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse", PEER_STEP, 1),
+              ("penalty", PEER_STEP, 1))
+
 QUICK = dict(
     peers_scenes=("drop", "stack", "pyramid", "flip"), peers_engines=ENGINES,
     peers_drop_batch=64, peers_drop_steps=500, peers_mujoco_worlds=16,
-    peers_drop_jaxrb=((JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), (PEER_STEP, 1)),
+    peers_drop_jaxrb=DROP_JAXRB,
     peers_stack_batch=4, peers_stack_seconds=1.0, peers_stack_mjx=False,
     peers_pyramid_batch=4, peers_pyramid_seconds=1.0, peers_pyramid_big_batch=None,
     peers_pyramid_big_seconds=1.0,
@@ -107,7 +113,7 @@ QUICK = dict(
 FULL = dict(
     peers_scenes=("drop", "stack", "pyramid", "flip"), peers_engines=ENGINES,
     peers_drop_batch=1024, peers_drop_steps=1000, peers_mujoco_worlds=256,
-    peers_drop_jaxrb=((JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), (PEER_STEP, 1)),
+    peers_drop_jaxrb=DROP_JAXRB,
     peers_stack_batch=16, peers_stack_seconds=5.0, peers_stack_mjx=False,  # MJX: ~1.5 k body-steps/s, 4+ min
     peers_pyramid_batch=16, peers_pyramid_seconds=5.0, peers_pyramid_big_batch=256,
     peers_pyramid_big_seconds=1.0,  # the batch-256 run is for speed; standing is judged at peers_pyramid_batch
@@ -368,8 +374,8 @@ def _median_wall(fn: Callable, repeats: int):
 def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, build=None):
     import jaxrb as rb
 
-    options = {"substeps": substeps, **(build or {})}
-    model, params, state = scene_factory().build(contact="impulse", dtype=jnp.float32, dt=dt, **options)
+    options = {"contact": "impulse", "substeps": substeps, **(build or {})}
+    model, params, state = scene_factory().build(dtype=jnp.float32, dt=dt, **options)
     step = rb.make_step(model)
     if batch > 1:
         step = jax.vmap(step, in_axes=(0, None))
@@ -382,16 +388,18 @@ def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, buil
 
 def _setting_text(dt: float, substeps: int, build=None) -> str:
     substeps = (build or {}).get("substeps", substeps)
-    text = f"impulse, {fmt_step(dt)} s" + (f" × {substeps}" if substeps > 1 else "")
+    text = f"{(build or {}).get('contact', 'impulse')}, {fmt_step(dt)} s" + (f" × {substeps}" if substeps > 1 else "")
     if build and "broadphase" in build:
         text += f", {build['broadphase']} broadphase ({build['broadphase_capacity']} pairs)"
     return text
 
 
-def jaxrb_drop(dt: float, substeps: int, batch: int, num_steps: int, settings: dict) -> PeerRow:
-    """jaxrb's box drop at step ``dt`` with ``substeps``; see the module docstring.
+def jaxrb_drop(contact_model: str, dt: float, substeps: int, batch: int, num_steps: int,
+               settings: dict) -> PeerRow:
+    """jaxrb's box drop with ``contact_model`` at step ``dt`` with ``substeps``; see the module docstring.
 
     Args:
+        contact_model: ``"impulse"`` or ``"penalty"`` (its default stiffness and damping).
         dt: step (s).
         substeps: substeps per step.
         batch: worlds.
@@ -401,9 +409,10 @@ def jaxrb_drop(dt: float, substeps: int, batch: int, num_steps: int, settings: d
     Returns:
         A :class:`PeerRow` with ``rest_offset`` and ``rest_error`` metrics.
     """
+    build = {"contact": contact_model}
     timing, _, final, bodies = _jaxrb_batched(contact.drop_scene, dt, substeps, batch, num_steps,
-                                              settings)
-    return PeerRow("drop", "jaxrb", _setting_text(dt, substeps), dt, batch, bodies, num_steps,
+                                              settings, build)
+    return PeerRow("drop", "jaxrb", _setting_text(dt, substeps, build), dt, batch, bodies, num_steps,
                    timing.compile_s, timing.run_s, _rest_metrics(final[:, 0, 2]))
 
 
@@ -868,8 +877,9 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
     scenes = settings["peers_scenes"]
     if "drop" in scenes:
         batch, steps = settings["peers_drop_batch"], settings["peers_drop_steps"]
-        for dt, substeps in settings["peers_drop_jaxrb"]:
-            attempt("jaxrb", "drop", lambda d=dt, n=substeps: jaxrb_drop(d, n, batch, steps, settings))
+        for model, dt, substeps in settings["peers_drop_jaxrb"]:
+            attempt("jaxrb", "drop", lambda m=model, d=dt, n=substeps: jaxrb_drop(m, d, n, batch, steps,
+                                                                                  settings))
         attempt("mujoco", "drop", lambda: mujoco_drop(modules["mujoco"], steps,
                                                       settings["peers_mujoco_worlds"], settings))
         attempt("mjx", "drop", lambda: mjx_drop(modules["mjx"], batch, steps, settings))

@@ -25,6 +25,8 @@ from typing import Any, Callable, Sequence
 
 import jax
 
+from jaxrb.compile import jit
+
 
 @dataclasses.dataclass(frozen=True)
 class Timing:
@@ -59,7 +61,7 @@ def compile_jitted(fn: Callable, *args, static_argnums: Sequence[int] = ()):
     ``compiled`` is called with the non-static arguments only.
     """
     start = time.perf_counter()
-    compiled = jax.jit(fn, static_argnums=tuple(static_argnums)).lower(*args).compile()
+    compiled = jit(fn, static_argnums=tuple(static_argnums)).lower(*args).compile()
     return compiled, time.perf_counter() - start
 
 
