@@ -351,8 +351,21 @@ def rk4_body(model: Model, params: Params, state: State, force, torque, h) -> St
     step). M is summed in two parts, M = hi + ``state.momentum_residual``
     (compensated summation): in float32 the rounding of adding each step's
     small update to M, and of storing M as world ω, otherwise piles up into
-    flip-time errors of 0.1–0.4 s over 20 s of tumbling (measured). The arguments and
-    result are those of :func:`rk4`; in 2D this is :func:`rk4`.
+    flip-time errors of 0.1–0.4 s over 20 s of tumbling (measured). In 2D this
+    is :func:`rk4`.
+
+    Args:
+        model: the scene's Model (dimension, damping).
+        params: Params (mass, inertia, damping rates).
+        state: State at the start of the substep; ``state.momentum_residual``
+            (n, 3) carries the low part of M between substeps.
+        force: (n, dim) world-frame force on each centre of mass, held constant.
+        torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
+        h: () substep length (s).
+
+    Returns:
+        State after the substep with its new ``momentum_residual`` (``time`` is
+        left to the caller).
     """
     if model.dim == 2:
         return rk4(model, params, state, force, torque, h)
