@@ -15,7 +15,8 @@ from jaxrb.bench import contact, peers
 
 GRAVITY = 9.81
 TINY = dict(peers_scenes=("drop", "flip"), peers_engines=peers.ENGINES, peers_drop_batch=2,
-            peers_drop_steps=20, peers_mujoco_worlds=2, peers_drop_jaxrb=(("impulse", 4 * peers.PEER_STEP, 4), ("penalty", peers.PEER_STEP, 1)),
+            peers_drop_steps=20, peers_mujoco_worlds=2,
+            peers_drop_jaxrb=(("impulse", 4 * peers.PEER_STEP, 4), ("penalty", peers.PEER_STEP, 1)),
             peers_flip_steps=(1 / 60,), peers_flip_horizon=4.0, peers_flip_configs=(("rk4", None),),
             peers_repeats=1, peers_budget_s=0.5)
 MODULE_OF = {"mujoco": "mujoco", "mjx": "mujoco.mjx", "brax_spring": "brax", "brax_positional": "brax",

@@ -410,8 +410,9 @@ def run_throughput(integrator: str, batch: int, num_steps: int, num_bodies: int 
     timing = time_jitted(final_state, state, params, repeats=repeats, budget_s=10.0)
     if not bool(jnp.all(jnp.isfinite(timing.output.pos))):
         raise FloatingPointError(f"throughput run {integrator} batch {batch} went non-finite")
-    return ThroughputResult(integrator, model.orientation if integrator not in QUATERNION_ODE_INTEGRATORS else None,
-                            batch, num_bodies, num_steps, timing.compile_s, timing.run_s)
+    orientation = None if integrator in QUATERNION_ODE_INTEGRATORS else model.orientation
+    return ThroughputResult(integrator, orientation, batch, num_bodies, num_steps, timing.compile_s,
+                            timing.run_s)
 
 
 def throughput_section(integrators: Sequence[str], batches: Sequence[int], num_steps: int,

@@ -387,9 +387,10 @@ def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, buil
 
 
 def _setting_text(dt: float, substeps: int, build=None) -> str:
-    substeps = (build or {}).get("substeps", substeps)
-    text = f"{(build or {}).get('contact', 'impulse')}, {fmt_step(dt)} s" + (f" × {substeps}" if substeps > 1 else "")
-    if build and "broadphase" in build:
+    build = build or {}
+    substeps = build.get("substeps", substeps)
+    text = f"{build.get('contact', 'impulse')}, {fmt_step(dt)} s" + (f" × {substeps}" if substeps > 1 else "")
+    if "broadphase" in build:
         text += f", {build['broadphase']} broadphase ({build['broadphase_capacity']} pairs)"
     return text
 
