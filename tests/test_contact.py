@@ -220,6 +220,34 @@ def test_pair_table_holds_only_the_kernels_the_scene_needs():
     assert free_model.contact == "none" and free_model.pair_groups == () and free_state.contact_impulse is None
 
 
+def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
+    """row_taker/row_summer (slices and sums from the pair table) against indexing and segment_sum.
+
+    The scene has every kind of piece: a plane group over consecutive bodies,
+    a single-pair group, body–body groups whose rows are not consecutive, and
+    a plane on side B (the static row n); with a broadphase the rows are data.
+    """
+    from jaxrb.collision.pairs import detect, row_summer, row_taker, static_rows
+
+    scene = rb.Scene(dim=3)
+    scene.add_plane()
+    for x in range(3):
+        scene.add_body(rb.Box((0.1, 0.1, 0.1)), pos=(0.15 * x, 0.0, 0.1 + 0.05 * x))
+    scene.add_body(rb.Sphere(0.1), pos=(0.1, 0.1, 0.3))
+    for broadphase in ("all_pairs", "spheres"):
+        model, params, state = scene.build(dt=1 / 60, broadphase=broadphase, broadphase_capacity=2)
+        assert (static_rows(model) is None) == (broadphase == "spheres")
+        contacts = jax.jit(lambda p, s: detect(model, p, s))(params, state)
+        a, b = contacts.body_a, contacts.body_b
+        take, add = row_taker(model, a, b), row_summer(model, a, b)
+        bodies = jnp.arange(5 * 3, dtype=jnp.float32).reshape(5, 3) ** 2  # padded: n + 1 rows
+        values = jnp.sin(jnp.arange(3 * a.shape[0], dtype=jnp.float32)).reshape(-1, 3)
+        for side, rows in ((0, a), (1, b)):
+            np.testing.assert_array_equal(take(bodies, side), bodies[rows])
+            np.testing.assert_allclose(add(values, side), jax.ops.segment_sum(values, rows, 5),
+                                       rtol=1e-6, atol=1e-6)
+
+
 @pytest.mark.parametrize("contact", MODELS)
 def test_contact_model_with_nothing_to_touch_steps_as_free_bodies(contact):
     scene = rb.Scene(dim=3)

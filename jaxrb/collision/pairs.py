@@ -16,6 +16,7 @@ silently.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -212,6 +213,119 @@ def round_sides(model: Model):
     return tuple(np.concatenate(side) if side else np.zeros(0, dtype=bool) for side in sides)
 
 
+def _bodies_piece(bodies, repeat):
+    """How to read ``bodies`` (static ints), each repeated ``repeat`` times, off a per-body array.
+
+    ``("range", first, count, repeat, step)`` when they are consecutive
+    (step 1: a slice) or all the same (step 0: one row), read with a
+    broadcast and no gather; else ``("index", rows)`` with the numpy rows.
+    """
+    bodies = np.asarray(bodies, dtype=np.int32)
+    if np.all(np.diff(bodies) == 1) or np.all(bodies == bodies[0]):
+        step = 1 if len(bodies) > 1 and bodies[1] != bodies[0] else 0
+        return ("range", int(bodies[0]), len(bodies), int(repeat), step)
+    return ("index", np.repeat(bodies, repeat))
+
+
+@functools.lru_cache(maxsize=None)
+def static_rows(model: Model):
+    """The body rows of the contacts' side A and side B as static pieces, or None when a broadphase picks pairs.
+
+    Each side is a tuple of pieces, one per pair group (see
+    :func:`_bodies_piece`), in :func:`detect`'s row order; :func:`take_rows`
+    reads a padded (n + 1, ...) body array with them. Planes are the static row n.
+    """
+    if any(group.capacity < len(group.body_a) for group in model.pair_groups):
+        return None
+    sides = ([], [])
+    for group in model.pair_groups:
+        body_b = (model.num_bodies,) * len(group.body_b) if group.b_is_plane else group.body_b
+        for side, bodies in zip(sides, (group.body_a, body_b)):
+            side.append(_bodies_piece(bodies, group.slots))
+    return tuple(tuple(side) for side in sides)
+
+
+def take_rows(array, pieces):
+    """The rows ``pieces`` name of a per-body array, with slices and broadcasts where they allow.
+
+    Args:
+        array: (n + 1, ...) per-body values (or (n, ...) when no piece names the static row).
+        pieces: one side of :func:`static_rows`.
+
+    Returns:
+        (C, ...) the rows' values.
+    """
+    parts = []
+    for piece in pieces:
+        if piece[0] == "index":
+            parts.append(array[piece[1]])
+            continue
+        _, first, count, repeat, step = piece
+        block = array[first:first + count] if step else jnp.broadcast_to(array[first], (count,) + array.shape[1:])
+        block = jnp.broadcast_to(block[:, None], (count, repeat) + array.shape[1:])
+        parts.append(block.reshape((count * repeat,) + array.shape[1:]))
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts)
+
+
+def sum_rows(values, pieces, num_rows):
+    """Per-body sums of per-row ``values``: the transpose of :func:`take_rows`.
+
+    Args:
+        values: (C, ...) per contact row.
+        pieces: one side of :func:`static_rows`.
+        num_rows: rows of the result (n + 1 with the static row).
+
+    Returns:
+        (num_rows, ...) Σ of the values of each body's rows.
+    """
+    total = jnp.zeros((num_rows,) + values.shape[1:], values.dtype)
+    start = 0
+    for piece in pieces:
+        if piece[0] == "index":
+            count = len(piece[1])
+            total = total + jax.ops.segment_sum(values[start:start + count], piece[1], num_rows)
+            start += count
+            continue
+        _, first, count, repeat, step = piece
+        block = values[start:start + count * repeat].reshape((count, repeat) + values.shape[1:])
+        # Under vmap a scatter runs as a loop over worlds and wants the rows
+        # axis first (a transposed copy of every operand); these are sums.
+        if step:
+            total = total.at[first:first + count].add(jnp.sum(block, axis=1))
+        else:
+            total = total.at[first].add(jnp.sum(block, axis=(0, 1)))
+        start += count * repeat
+    return total
+
+
+def row_taker(model: Model, body_a, body_b):
+    """``take(array, side)``: the side-A (0) or side-B (1) rows of a padded body array.
+
+    Reads with static slices and broadcasts where the pair table fixes the
+    rows (:func:`static_rows`), else indexes with the traced ``body_a``,
+    ``body_b`` (C,). Under vmap a gather of the batched (n + 1, 3) arrays
+    comes out as a transposed (C, batch, 3) copy that every consumer re-reads;
+    a broadcast fuses into its consumer.
+    """
+    pieces = static_rows(model)
+    if pieces is None:
+        return lambda array, side: array[body_b if side else body_a]
+    return lambda array, side: take_rows(array, pieces[side])
+
+
+def row_summer(model: Model, body_a, body_b):
+    """``add(values, side)``: (n + 1, ...) per-body sums of side-A (0) or side-B (1) row values.
+
+    The transpose of :func:`row_taker`: static slices and sums where the pair
+    table fixes the rows, else a segment sum over the traced rows.
+    """
+    pieces = static_rows(model)
+    num = model.num_bodies + 1
+    if pieces is None:
+        return lambda values, side: jax.ops.segment_sum(values, body_b if side else body_a, num)
+    return lambda values, side: sum_rows(values, pieces[side], num)
+
+
 def _stack_geometry(model, bodies, dtype):
     arrays = [geometry(model.shapes[b], model.dim)[1] for b in bodies]
     return tuple(jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0])))
@@ -237,6 +351,14 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
     """
     dtype = state.pos.dtype
     origin, rotation = shape_poses(model, params, state)
+
+    def pose_of(bodies, traced, group):
+        """Shape poses of the group's pairs' bodies: slices when it runs all its pairs."""
+        if group.capacity < len(group.body_a):
+            return origin[traced], rotation[traced]
+        piece = (_bodies_piece(bodies, 1),)
+        return take_rows(origin, piece), take_rows(rotation, piece)
+
     num = model.num_bodies
     parts, overflow = [], jnp.zeros((), dtype=bool)
     for group in model.pair_groups:
@@ -251,8 +373,8 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
                       jnp.broadcast_to(jnp.eye(model.dim, dtype=dtype), (len(group.body_b), model.dim, model.dim)))
         else:
             geom_b = _stack_geometry(model, group.body_b, dtype)
-            pose_b = (origin[body_b], rotation[body_b])
-        pose_a = (origin[body_a], rotation[body_a])
+            pose_b = pose_of(group.body_b, body_b, group)
+        pose_a = pose_of(group.body_a, body_a, group)
         pair_ids = jnp.arange(len(group.body_a), dtype=jnp.int32)
         in_use = jnp.ones((len(group.body_a),), dtype=bool)
         if group.capacity < len(group.body_a):
@@ -284,8 +406,9 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
             key=key))
     merged = {name: jnp.concatenate([part[name] for part in parts]) for name in parts[0]}
     pos = pad(state.pos)
+    take = row_taker(model, merged["body_a"], merged["body_b"])
     rel_vel = relative_velocity(model, pad(state.vel), pad(state.angvel), merged["body_a"], merged["body_b"],
-                                merged["point"] - pos[merged["body_a"]], merged["point"] - pos[merged["body_b"]])
+                                merged["point"] - take(pos, 0), merged["point"] - take(pos, 1), take)
     normal_velocity = jnp.sum(merged["normal"] * rel_vel, axis=-1)
     # Speculative margin: a contact approaching fast is kept from farther away.
     reach = params.contact_margin + params.dt * jnp.maximum(-normal_velocity, 0.0)

@@ -12,10 +12,17 @@ import jax.numpy as jnp
 from jaxrb.collision.contacts import Contacts
 
 
+def _to_world(points, origin, rotation):
+    """origin + R p for body-frame points (K, dim), as a broadcast sum (see :func:`_against_plane`)."""
+    return origin + jnp.sum(points[:, None, :] * rotation, axis=-1)
+
+
 def _against_plane(points, radius, plane):
     """Contacts of world points swept by ``radius`` against a plane. points: (K, dim)."""
     normal, offset = plane
-    height = points @ normal - offset
+    # Sums, not ``@``: under vmap a dot of (K, 3) by (3,) comes out with the
+    # batch axis inside (K, batch) and has to be transposed back.
+    height = jnp.sum(points * normal, axis=-1) - offset
     dist = height - radius
     # Midway between the shape's surface (height - radius) and the plane (0).
     point = points - (0.5 * (height + radius))[:, None] * normal
@@ -46,14 +53,13 @@ def box_plane(geom_a, geom_b, pose_a, pose_b):
     """Box against a plane: its 8 corners, 8 contacts (those below the margin matter)."""
     (half_extents,), (origin, rotation) = geom_a, pose_a
     signs = jnp.asarray(_BOX_CORNERS, dtype=half_extents.dtype)  # scene dtype, never promoted
-    corners = origin + (signs * half_extents) @ rotation.T
-    return _against_plane(corners, 0.0, geom_b)
+    return _against_plane(_to_world(signs * half_extents, origin, rotation), 0.0, geom_b)
 
 
 def points_plane(geom_a, geom_b, pose_a, pose_b):
     """Point-mass body (or any vertex set) against a plane: one contact per point."""
     (points,), (origin, rotation) = geom_a, pose_a
-    return _against_plane(origin + points @ rotation.T, 0.0, geom_b)
+    return _against_plane(_to_world(points, origin, rotation), 0.0, geom_b)
 
 
 def polygon_plane(geom_a, geom_b, pose_a, pose_b):

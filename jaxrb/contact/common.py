@@ -25,19 +25,24 @@ def spin_cross(model: Model, angvel, arm):
     return cross(angvel, arm) if model.dim == 3 else cross_scalar2(angvel, arm)
 
 
-def relative_velocity(model: Model, vel, angvel, body_a, body_b, arm_a, arm_b):
+def relative_velocity(model: Model, vel, angvel, body_a, body_b, arm_a, arm_b, take=None):
     """v_A + ω_A × r_A − v_B − ω_B × r_B at contact points.
 
     Args:
         vel, angvel: padded (n + 1, ...) body velocities (see :func:`pad`).
         body_a, body_b: (C,) body rows of each contact.
         arm_a, arm_b: (C, dim) contact point minus each body's centre of mass.
+        take: optional ``take(array, side)`` reading side 0 (A) or 1 (B) rows
+            of a padded body array (:func:`jaxrb.collision.pairs.row_taker`);
+            default ``array[body_a]`` / ``array[body_b]``.
 
     Returns:
         (C, dim) relative velocity of A's material point with respect to B's.
     """
-    return (vel[body_a] + spin_cross(model, angvel[body_a], arm_a)
-            - vel[body_b] - spin_cross(model, angvel[body_b], arm_b))
+    if take is None:
+        take = lambda array, side: array[body_b if side else body_a]
+    return (take(vel, 0) + spin_cross(model, take(angvel, 0), arm_a)
+            - take(vel, 1) - spin_cross(model, take(angvel, 1), arm_b))
 
 
 def moment(model: Model, arm, force):

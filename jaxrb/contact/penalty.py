@@ -46,7 +46,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxrb.contact.common import (clamp_to_disc, contact_counts, effective_mass, moment, pad,
+from jaxrb.collision.pairs import row_summer, row_taker
+from jaxrb.contact.common import (clamp_to_disc, effective_mass, moment, pad,
                                   relative_velocity, world_inverse_inertia)
 from jaxrb.math import safe_norm, safe_normalize
 from jaxrb.types import Model, Params, State
@@ -85,10 +86,11 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     num = model.num_bodies
     pos = pad(state.pos)
     a, b = contacts.body_a, contacts.body_b
-    arm_a, arm_b = contacts.point - pos[a], contacts.point - pos[b]
+    take, add = row_taker(model, a, b), row_summer(model, a, b)
+    arm_a, arm_b = contacts.point - take(pos, 0), contacts.point - take(pos, 1)
 
     def contact_velocity(source):
-        return relative_velocity(model, pad(source.vel), pad(source.angvel), a, b, arm_a, arm_b)
+        return relative_velocity(model, pad(source.vel), pad(source.angvel), a, b, arm_a, arm_b, take)
 
     def tangential(vector):
         return vector - jnp.sum(vector * normal, axis=-1, keepdims=True) * normal
@@ -106,16 +108,18 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         gate = (penetration > 0.0).astype(penetration.dtype)
     inv_mass = pad(1.0 / params.mass)
     inv_inertia = world_inverse_inertia(model, params, state)
-    sharing = jnp.maximum(contact_counts(model, contacts), 1.0)
-    sharing = jnp.maximum(sharing[a], jnp.where(b == num, 1.0, sharing[b]))
+    active = contacts.active.astype(contacts.dist.dtype)
+    sharing = jnp.maximum(add(active, 0) + add(active, 1), 1.0)  # contacts touching each body
+    sharing = jnp.maximum(take(sharing, 0), jnp.where(b == num, 1.0, take(sharing, 1)))
 
     def contact_mass(direction):
         """Effective mass along ``direction`` (C, dim), shared among the body's contacts."""
-        return effective_mass(model, inv_mass[a], inv_mass[b], inv_inertia[a], inv_inertia[b],
+        return effective_mass(model, take(inv_mass, 0), take(inv_mass, 1), take(inv_inertia, 0),
+                              take(inv_inertia, 1),
                               arm_a, arm_b, direction) / sharing
 
     if model.penalty_damping_from_restitution:
-        reduced_mass = 1.0 / (inv_mass[a] + inv_mass[b])
+        reduced_mass = 1.0 / (take(inv_mass, 0) + take(inv_mass, 1))
         damping = (2.0 * damping_ratio_from_restitution(contacts.restitution)
                    * jnp.sqrt(params.penalty_stiffness * reduced_mass))
     else:
@@ -147,9 +151,7 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         held_friction = friction_force
 
     force = normal_force[:, None] * normal + friction_force
-    total = num + 1
-    body_force = jax.ops.segment_sum(force, a, total) - jax.ops.segment_sum(force, b, total)
-    body_torque = (jax.ops.segment_sum(moment(model, arm_a, force), a, total)
-                   - jax.ops.segment_sum(moment(model, arm_b, force), b, total))
+    body_force = add(force, 0) - add(force, 1)
+    body_torque = add(moment(model, arm_a, force), 0) - add(moment(model, arm_b, force), 1)
     return body_force[:num], body_torque[:num], normal_force, held_friction
 
