@@ -240,11 +240,12 @@ def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
         contacts = jax.jit(lambda p, s: detect(model, p, s))(params, state)
         a, b = contacts.body_a, contacts.body_b
         take, add = row_taker(model, a, b), row_summer(model, a, b)
-        bodies = jnp.arange(5 * 3, dtype=jnp.float32).reshape(5, 3) ** 2  # padded: n + 1 rows
+        bodies = 1.0 + jnp.arange(4 * 3, dtype=jnp.float32).reshape(4, 3) ** 2  # n rows
+        padded = jnp.concatenate([bodies, jnp.zeros((1, 3))])  # the static row (planes) is zeros
         values = jnp.sin(jnp.arange(3 * a.shape[0], dtype=jnp.float32)).reshape(-1, 3)
         for side, rows in ((0, a), (1, b)):
-            np.testing.assert_array_equal(take(bodies, side), bodies[rows])
-            np.testing.assert_allclose(add(values, side), jax.ops.segment_sum(values, rows, 5),
+            np.testing.assert_array_equal(take(bodies, side), padded[rows])
+            np.testing.assert_allclose(add(values, side), jax.ops.segment_sum(values, rows, 5)[:4],
                                        rtol=1e-6, atol=1e-6)
 
 

@@ -213,14 +213,17 @@ def round_sides(model: Model):
     return tuple(np.concatenate(side) if side else np.zeros(0, dtype=bool) for side in sides)
 
 
-def _bodies_piece(bodies, repeat):
+def _bodies_piece(bodies, repeat, static_row=None):
     """How to read ``bodies`` (static ints), each repeated ``repeat`` times, off a per-body array.
 
+    ``("static", rows)`` when every body is ``static_row`` (the planes: zeros);
     ``("range", first, count, repeat, step)`` when they are consecutive
     (step 1: a slice) or all the same (step 0: one row), read with a
     broadcast and no gather; else ``("index", rows)`` with the numpy rows.
     """
     bodies = np.asarray(bodies, dtype=np.int32)
+    if np.all(bodies == static_row):
+        return ("static", len(bodies) * int(repeat))
     if np.all(np.diff(bodies) == 1) or np.all(bodies == bodies[0]):
         step = 1 if len(bodies) > 1 and bodies[1] != bodies[0] else 0
         return ("range", int(bodies[0]), len(bodies), int(repeat), step)
@@ -233,7 +236,7 @@ def static_rows(model: Model):
 
     Each side is a tuple of pieces, one per pair group (see
     :func:`_bodies_piece`), in :func:`detect`'s row order; :func:`take_rows`
-    reads a padded (n + 1, ...) body array with them. Planes are the static row n.
+    reads an (n, ...) body array with them. Planes are the static row n.
     """
     if any(group.capacity < len(group.body_a) for group in model.pair_groups):
         return None
@@ -241,7 +244,7 @@ def static_rows(model: Model):
     for group in model.pair_groups:
         body_b = (model.num_bodies,) * len(group.body_b) if group.b_is_plane else group.body_b
         for side, bodies in zip(sides, (group.body_a, body_b)):
-            side.append(_bodies_piece(bodies, group.slots))
+            side.append(_bodies_piece(bodies, group.slots, model.num_bodies))
     return tuple(tuple(side) for side in sides)
 
 
@@ -249,7 +252,7 @@ def take_rows(array, pieces):
     """The rows ``pieces`` name of a per-body array, with slices and broadcasts where they allow.
 
     Args:
-        array: (n + 1, ...) per-body values (or (n, ...) when no piece names the static row).
+        array: (n, ...) per-body values; the static row (planes) reads as zeros.
         pieces: one side of :func:`static_rows`.
 
     Returns:
@@ -257,6 +260,9 @@ def take_rows(array, pieces):
     """
     parts = []
     for piece in pieces:
+        if piece[0] == "static":
+            parts.append(jnp.zeros((piece[1],) + array.shape[1:], array.dtype))
+            continue
         if piece[0] == "index":
             parts.append(array[piece[1]])
             continue
@@ -273,14 +279,17 @@ def sum_rows(values, pieces, num_rows):
     Args:
         values: (C, ...) per contact row.
         pieces: one side of :func:`static_rows`.
-        num_rows: rows of the result (n + 1 with the static row).
+        num_rows: bodies n (rows on the static body are left out).
 
     Returns:
-        (num_rows, ...) Σ of the values of each body's rows.
+        (n, ...) Σ of the values of each body's rows.
     """
     total = jnp.zeros((num_rows,) + values.shape[1:], values.dtype)
     start = 0
     for piece in pieces:
+        if piece[0] == "static":
+            start += piece[1]
+            continue
         if piece[0] == "index":
             count = len(piece[1])
             total = total + jax.ops.segment_sum(values[start:start + count], piece[1], num_rows)
@@ -299,30 +308,32 @@ def sum_rows(values, pieces, num_rows):
 
 
 def row_taker(model: Model, body_a, body_b):
-    """``take(array, side)``: the side-A (0) or side-B (1) rows of a padded body array.
+    """``take(array, side)``: the side-A (0) or side-B (1) rows of an (n, ...) body array.
 
-    Reads with static slices and broadcasts where the pair table fixes the
-    rows (:func:`static_rows`), else indexes with the traced ``body_a``,
-    ``body_b`` (C,). Under vmap a gather of the batched (n + 1, 3) arrays
-    comes out as a transposed (C, batch, 3) copy that every consumer re-reads;
+    The static row n (planes) reads as zeros. Reads with static slices and
+    broadcasts where the pair table fixes the rows (:func:`static_rows`),
+    else pads and indexes with the traced ``body_a``, ``body_b`` (C,). Under
+    vmap a gather of the batched (n + 1, 3) arrays comes out as a transposed
+    (C, batch, 3) copy that every consumer re-reads, and padding is a copy;
     a broadcast fuses into its consumer.
     """
     pieces = static_rows(model)
     if pieces is None:
-        return lambda array, side: array[body_b if side else body_a]
+        return lambda array, side: pad(array)[body_b if side else body_a]
     return lambda array, side: take_rows(array, pieces[side])
 
 
 def row_summer(model: Model, body_a, body_b):
-    """``add(values, side)``: (n + 1, ...) per-body sums of side-A (0) or side-B (1) row values.
+    """``add(values, side)``: (n, ...) per-body sums of side-A (0) or side-B (1) row values.
 
-    The transpose of :func:`row_taker`: static slices and sums where the pair
-    table fixes the rows, else a segment sum over the traced rows.
+    The transpose of :func:`row_taker` (rows on the static row n are left
+    out): static slices and sums where the pair table fixes the rows, else a
+    segment sum over the traced rows.
     """
     pieces = static_rows(model)
-    num = model.num_bodies + 1
+    num = model.num_bodies
     if pieces is None:
-        return lambda values, side: jax.ops.segment_sum(values, body_b if side else body_a, num)
+        return lambda values, side: jax.ops.segment_sum(values, body_b if side else body_a, num + 1)[:num]
     return lambda values, side: sum_rows(values, pieces[side], num)
 
 
@@ -405,10 +416,9 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
             friction=repeat(_mix_friction(mu_a, mu_b)), restitution=repeat(jnp.maximum(e_a, e_b)),
             key=key))
     merged = {name: jnp.concatenate([part[name] for part in parts]) for name in parts[0]}
-    pos = pad(state.pos)
     take = row_taker(model, merged["body_a"], merged["body_b"])
-    rel_vel = relative_velocity(model, pad(state.vel), pad(state.angvel), merged["body_a"], merged["body_b"],
-                                merged["point"] - take(pos, 0), merged["point"] - take(pos, 1), take)
+    rel_vel = relative_velocity(model, state.vel, state.angvel, merged["body_a"], merged["body_b"],
+                                merged["point"] - take(state.pos, 0), merged["point"] - take(state.pos, 1), take)
     normal_velocity = jnp.sum(merged["normal"] * rel_vel, axis=-1)
     # Speculative margin: a contact approaching fast is kept from farther away.
     reach = params.contact_margin + params.dt * jnp.maximum(-normal_velocity, 0.0)

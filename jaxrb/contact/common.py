@@ -29,12 +29,13 @@ def relative_velocity(model: Model, vel, angvel, body_a, body_b, arm_a, arm_b, t
     """v_A + ω_A × r_A − v_B − ω_B × r_B at contact points.
 
     Args:
-        vel, angvel: padded (n + 1, ...) body velocities (see :func:`pad`).
+        vel, angvel: padded (n + 1, ...) body velocities (see :func:`pad`), or
+            with ``take`` the (n, ...) arrays it reads.
         body_a, body_b: (C,) body rows of each contact.
         arm_a, arm_b: (C, dim) contact point minus each body's centre of mass.
         take: optional ``take(array, side)`` reading side 0 (A) or 1 (B) rows
-            of a padded body array (:func:`jaxrb.collision.pairs.row_taker`);
-            default ``array[body_a]`` / ``array[body_b]``.
+            (:func:`jaxrb.collision.pairs.row_taker`); default
+            ``array[body_a]`` / ``array[body_b]`` of padded arrays.
 
     Returns:
         (C, dim) relative velocity of A's material point with respect to B's.
@@ -55,13 +56,13 @@ def apply_inverse_inertia(model: Model, inv_inertia, torque):
     return matvec3(inv_inertia, torque) if model.dim == 3 else inv_inertia * torque
 
 
-def world_inverse_inertia(model: Model, params: Params, state: State):
-    """Padded world inverse inertia: (n + 1, 3, 3) R I⁻¹ Rᵀ in 3D, (n + 1,) in 2D."""
+def world_inverse_inertia(model: Model, params: Params, state: State, padded: bool = True):
+    """World inverse inertia: (n + 1, 3, 3) R I⁻¹ Rᵀ in 3D, (n + 1,) in 2D; n rows if not ``padded``."""
     body_inverse = inverse_inertia(params, model.dim)
-    if model.dim == 2:
-        return pad(body_inverse)
-    rotation = quat_ops.to_rotation_matrix(state.quat)
-    return pad(jnp.einsum("nij,njk,nlk->nil", rotation, body_inverse, rotation))
+    if model.dim == 3:
+        rotation = quat_ops.to_rotation_matrix(state.quat)
+        body_inverse = jnp.einsum("nij,njk,nlk->nil", rotation, body_inverse, rotation)
+    return pad(body_inverse) if padded else body_inverse
 
 
 def effective_mass(model, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b, arm_a, arm_b, direction):

@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb.collision.pairs import row_summer, row_taker
-from jaxrb.contact.common import (clamp_to_disc, effective_mass, moment, pad,
+from jaxrb.contact.common import (clamp_to_disc, effective_mass, moment,
                                   relative_velocity, world_inverse_inertia)
 from jaxrb.math import safe_norm, safe_normalize
 from jaxrb.types import Model, Params, State
@@ -83,14 +83,13 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         torque ((n, 3) or (n,)) on every body, the normal force (C,) and the
         elastic friction force (C, dim) to carry to the next substep.
     """
-    num = model.num_bodies
-    pos = pad(state.pos)
     a, b = contacts.body_a, contacts.body_b
+    # Unpadded per-body arrays: ``take`` reads the static row (planes) as zeros.
     take, add = row_taker(model, a, b), row_summer(model, a, b)
-    arm_a, arm_b = contacts.point - take(pos, 0), contacts.point - take(pos, 1)
+    arm_a, arm_b = contacts.point - take(state.pos, 0), contacts.point - take(state.pos, 1)
 
     def contact_velocity(source):
-        return relative_velocity(model, pad(source.vel), pad(source.angvel), a, b, arm_a, arm_b, take)
+        return relative_velocity(model, source.vel, source.angvel, a, b, arm_a, arm_b, take)
 
     def tangential(vector):
         return vector - jnp.sum(vector * normal, axis=-1, keepdims=True) * normal
@@ -106,11 +105,11 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     else:
         activation = jnp.maximum(penetration, 0.0)
         gate = (penetration > 0.0).astype(penetration.dtype)
-    inv_mass = pad(1.0 / params.mass)
-    inv_inertia = world_inverse_inertia(model, params, state)
+    inv_mass = 1.0 / params.mass
+    inv_inertia = world_inverse_inertia(model, params, state, padded=False)
     active = contacts.active.astype(contacts.dist.dtype)
     sharing = jnp.maximum(add(active, 0) + add(active, 1), 1.0)  # contacts touching each body
-    sharing = jnp.maximum(take(sharing, 0), jnp.where(b == num, 1.0, take(sharing, 1)))
+    sharing = jnp.maximum(take(sharing, 0), take(sharing, 1))  # the static row reads 0
 
     def contact_mass(direction):
         """Effective mass along ``direction`` (C, dim), shared among the body's contacts."""
@@ -153,5 +152,5 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     force = normal_force[:, None] * normal + friction_force
     body_force = add(force, 0) - add(force, 1)
     body_torque = add(moment(model, arm_a, force), 0) - add(moment(model, arm_b, force), 1)
-    return body_force[:num], body_torque[:num], normal_force, held_friction
+    return body_force, body_torque, normal_force, held_friction
 
