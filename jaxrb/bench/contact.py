@@ -14,10 +14,10 @@ Scenes (the settings of ``tests/test_contact.py`` and ``tests/test_stacks.py``):
 * **pyramid2d**: 55-box 2D pyramid, 10 rows (impulse dt = 1/60 s,
   4 substeps; penalty dt = 1e-3 s).
 
-Everything runs in float32. ``num_steps`` steps are scanned inside one jit
-(final state only). Batch 1 is the step as written; larger batches are
-``jax.vmap(step, in_axes=(0, None))`` over initial states that differ by a
-tiny per-world shift of every body (±1 mm horizontally, 0–1 mm up).
+Everything runs in float32. ``num_steps`` steps run as ``rb.rollout`` runs
+them, inside one jit (final state only, :func:`jaxrb.bench.timing.final_state_fn`).
+Larger batches ``jax.vmap`` that over initial states that differ by a tiny
+per-world shift of every body (±1 mm horizontally, 0–1 mm up).
 Times come from :func:`jaxrb.bench.timing.time_jitted`. Every reported figure
 is checked to be finite (:func:`check_finite`).
 """
@@ -34,7 +34,7 @@ import numpy as np
 
 import jaxrb as rb
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
-from jaxrb.bench.timing import time_jitted
+from jaxrb.bench.timing import final_state_fn, time_jitted
 from jaxrb.compile import jit
 
 HALF = 0.1
@@ -140,20 +140,10 @@ def check_finite(result: ContactResult, final_pos) -> None:
                                  f"{result.batch}: non-finite figure or state ({figures})")
 
 
-def _final_state_fn(step, num_steps):
-    def final_state(state0, params0):
-        def body(current, _):
-            return step(current, params0), None
-
-        return jax.lax.scan(body, state0, None, length=num_steps)[0]
-
-    return final_state
-
-
 def resting_height_error(model, params, state, seconds: float = 1.0) -> float:
     """|z − 0.1 m| of the dropped box after ``seconds`` (batch 1)."""
     num_steps = int(round(seconds / float(params.dt)))
-    final = jit(_final_state_fn(rb.make_step(model), num_steps))(state, params)
+    final = jit(final_state_fn(rb.make_step(model), num_steps))(state, params)
     return abs(float(final.pos[0, -1]) - RESTING_HEIGHT)
 
 
@@ -168,9 +158,8 @@ def run_contact(name: str, contact: str, batch: int, num_steps: int, repeats: in
     if name == "drop" and batch == 1:
         rest_error = resting_height_error(model, params, state)
     if batch > 1:
-        step = jax.vmap(step, in_axes=(0, None))
         state = _batched_state(state, batch)
-    timing = time_jitted(_final_state_fn(step, num_steps), state, params, repeats=repeats,
+    timing = time_jitted(final_state_fn(step, num_steps, batch > 1), state, params, repeats=repeats,
                          budget_s=5.0)
     result = ContactResult(name, contact, float(build["dt"]), int(build["substeps"]), batch,
                            num_bodies, num_steps, timing.compile_s, timing.run_s, rest_error)
@@ -193,9 +182,9 @@ def contact_section(scenes: Sequence[str], large_batch: int, small_batch: int, n
                 results.append(r)
     lines = [
         "Scenes: " + "; ".join(f"**{n}**: {SCENES[n][1]}" for n in scenes) + ". "
-        f"float32; {num_steps} steps run by `lax.scan` inside one jit (final state only). "
-        "Batch 1 is the step as written; larger batches are `jax.vmap(step, in_axes=(0, None))` "
-        "over initial states shifted by a tiny per-world offset (±1 mm horizontally, 0–1 mm up). "
+        f"float32; {num_steps} steps of `rb.rollout` inside one jit (final state only); "
+        "larger batches are `jax.vmap` of it over initial states shifted by a tiny per-world "
+        "offset (±1 mm horizontally, 0–1 mm up). "
         "*compile* = trace + lower + compile; *run* = median wall time of the whole scan with "
         "block_until_ready; body-steps/s = batch · bodies · steps / run (a step includes its "
         "substeps). *rest err* = |z − 0.1 m| of the dropped box after 1 s (batch 1). "

@@ -33,7 +33,7 @@ import numpy as np
 import jaxrb as rb
 from jaxrb import quaternion as quat_ops
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
-from jaxrb.bench.timing import Stopwatch, time_jitted
+from jaxrb.bench.timing import Stopwatch, final_state_fn, time_jitted
 from jaxrb.types import QUATERNION_ODE_INTEGRATORS
 
 # --- the tumbling problem ------------------------------------------------------------------
@@ -388,9 +388,9 @@ def run_throughput(integrator: str, batch: int, num_steps: int, num_bodies: int 
                    dt: float = 1e-3, dtype=jnp.float32, repeats: int = 5) -> ThroughputResult:
     """Time ``num_steps`` steps scanned inside one jit, for one world or ``batch`` vmapped worlds.
 
-    ``batch == 1`` times the step as written (no vmap); larger batches use
-    ``jax.vmap(step, in_axes=(0, None))``. Only the final state is returned, so
-    the timing is the step's, not the cost of storing a trajectory.
+    The steps run as ``rb.rollout`` runs them (``jax.vmap``-ed over worlds
+    when ``batch > 1``). Only the final state is returned, so the timing is
+    the step's, not the cost of storing a trajectory.
     """
     # contact="none": the boxes never touch, and without it the velocity-first
     # integrators would get the default impulse solver over all 28 box pairs.
@@ -398,16 +398,9 @@ def run_throughput(integrator: str, batch: int, num_steps: int, num_bodies: int 
                                                               contact="none", dtype=dtype)
     step = rb.make_step(model)
     if batch > 1:
-        step = jax.vmap(step, in_axes=(0, None))
         state = _batched_state(state, batch)
-
-    def final_state(state0, params0):
-        def body(current, _):
-            return step(current, params0), None
-
-        return jax.lax.scan(body, state0, None, length=num_steps)[0]
-
-    timing = time_jitted(final_state, state, params, repeats=repeats, budget_s=10.0)
+    timing = time_jitted(final_state_fn(step, num_steps, batch > 1), state, params, repeats=repeats,
+                         budget_s=10.0)
     if not bool(jnp.all(jnp.isfinite(timing.output.pos))):
         raise FloatingPointError(f"throughput run {integrator} batch {batch} went non-finite")
     orientation = None if integrator in QUATERNION_ODE_INTEGRATORS else model.orientation
@@ -428,9 +421,8 @@ def throughput_section(integrators: Sequence[str], batches: Sequence[int], num_s
             results.append(result)
     lines = [
         f"{num_bodies} free boxes (different sizes, masses, spins), gravity on, no contact, "
-        f"float32, dt = 1e-3 s. {num_steps} steps run by `lax.scan` inside one jit (final state "
-        "only). Batch 1 is the step as written; larger batches are "
-        "`jax.vmap(step, in_axes=(0, None))` over states. *compile* = trace + lower + compile; "
+        f"float32, dt = 1e-3 s. {num_steps} steps of `rb.rollout` inside one jit (final state "
+        "only); larger batches are `jax.vmap` of it over states. *compile* = trace + lower + compile; "
         "*run* = median wall time of the whole scan with block_until_ready; "
         "body-steps/s = batch · bodies · steps / run.",
         "",

@@ -68,7 +68,7 @@ import numpy as np
 from jaxrb import analytic
 from jaxrb.bench import contact, free_body
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
-from jaxrb.bench.timing import time_jitted
+from jaxrb.bench.timing import final_state_fn, time_jitted
 
 HALF = contact.HALF  # m, half edge of every box
 DROP_CENTRE = contact.DROP_CENTRE
@@ -378,9 +378,8 @@ def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, buil
     model, params, state = scene_factory().build(dtype=jnp.float32, dt=dt, **options)
     step = rb.make_step(model)
     if batch > 1:
-        step = jax.vmap(step, in_axes=(0, None))
         state = contact._batched_state(state, batch)
-    timing = _time_jax(contact._final_state_fn(step, num_steps), state, params, settings=settings)
+    timing = _time_jax(final_state_fn(step, num_steps, batch > 1), state, params, settings=settings)
     initial = np.asarray(state.pos, dtype=np.float64).reshape((batch,) + tuple(state.pos.shape[-2:]))
     final = np.asarray(timing.output.pos, dtype=np.float64).reshape(initial.shape)
     return timing, initial, final, int(state.pos.shape[-2])

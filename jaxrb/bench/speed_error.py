@@ -10,9 +10,9 @@ is known in closed form (:mod:`jaxrb.analytic`) and scored on two axes:
   run time (compile excluded, ``block_until_ready``; :func:`time_jitted`) of
   the jitted rollout over the scene's horizon, every state stacked, divided by
   the horizon. Beside it: the compile time, and body-steps per second of
-  ``jax.vmap(step)`` over ``batch`` worlds (1 024 in the full report) scanned
-  for ``batch_steps`` steps inside one jit (final state only), with its own
-  compile time.
+  ``batch`` worlds (1 024 in the full report), ``jax.vmap`` of a
+  ``batch_steps``-step rollout inside one jit (final state only), with its
+  own compile time.
 
 Scenes and error metrics:
 
@@ -63,7 +63,7 @@ from jaxrb.bench.free_body import (TUMBLE_ANGVEL, TUMBLE_INERTIA, TUMBLE_CONFIGS
                                    tumble_scene)
 from jaxrb.bench.pareto import pareto_front, plot_speed_vs_error
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
-from jaxrb.bench.timing import Stopwatch, compile_jitted, time_compiled, time_jitted
+from jaxrb.bench.timing import Stopwatch, compile_jitted, final_state_fn, time_compiled, time_jitted
 
 GRAVITY = 9.81
 RADIUS = 0.1  # m, the bouncing and rolling spheres
@@ -667,7 +667,7 @@ def run_point(scene: str, config: dict, horizon: float, exact, repeats: int = 5)
 
 def time_batched(result: Point, batch: int, num_steps: int, repeats: int = 5,
                  cache: Optional[dict] = None) -> Point:
-    """Add body-steps/s of ``jax.vmap(step)`` over ``batch`` worlds to ``point`` (in place).
+    """Add body-steps/s of ``batch`` vmapped worlds to ``point`` (in place).
 
     Args:
         result: a :class:`Point` from :func:`run_point`.
@@ -687,15 +687,8 @@ def time_batched(result: Point, batch: int, num_steps: int, repeats: int = 5,
     states = _tiled_worlds(state, batch)
     key = (point.scene, model, point.config["dtype"], batch, num_steps)
     if cache is None or key not in cache:
-        step = jax.vmap(rb.make_step(model), in_axes=(0, None))
-
-        def final_state(worlds, params0):
-            def body(current, _):
-                return step(current, params0), None
-
-            return jax.lax.scan(body, worlds, None, length=num_steps)[0]
-
-        compiled = compile_jitted(final_state, states, params)
+        compiled = compile_jitted(final_state_fn(rb.make_step(model), num_steps, batched=True),
+                                  states, params)
         if cache is not None:
             cache[key] = compiled
     else:
@@ -1034,9 +1027,9 @@ def speed_error_section(settings: dict, log: Optional[Callable] = None):
         "offers. *s / sim s (b1)*: median wall time (compile excluded, block_until_ready, up to "
         f"{merged['speed_error_repeats']} calls after a warm-up) of the jitted batch-1 rollout "
         "over the horizon, all states stacked, per simulated second; *compile b1*: trace + lower + "
-        f"compile of it. *body-steps/s (batch)*: `jax.vmap(step)` over {merged['speed_error_batch']} "
-        f"worlds (each lifted 0–1 mm, spin nudged ≤ 1e-3 rad/s), {merged['speed_error_batch_steps']} "
-        f"steps in one jitted scan (final state only), measured for {batch_text}; a step includes "
+        f"compile of it. *body-steps/s (batch)*: `jax.vmap` over {merged['speed_error_batch']} "
+        f"worlds (each lifted 0–1 mm, spin nudged ≤ 1e-3 rad/s) of a {merged['speed_error_batch_steps']}"
+        f"-step rollout in one jit (final state only), measured for {batch_text}; a step includes "
         "its substeps. Contact scenes run in float32. ★: on the Pareto front (no other "
         "configuration is both cheaper and more accurate); cheapest-at-each-level lines read the "
         "front. Timings were taken on a shared machine and are noisy; errors are not.",

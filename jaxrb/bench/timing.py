@@ -26,6 +26,7 @@ from typing import Any, Callable, Sequence
 import jax
 
 from jaxrb.compile import jit
+from jaxrb.step import rollout
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,3 +127,18 @@ class Stopwatch:
     def __exit__(self, *exc):
         self.seconds = time.perf_counter() - self.start
         return False
+
+
+def final_state_fn(step: Callable, num_steps: int, batched: bool = False) -> Callable:
+    """``(state, params) -> state`` after ``num_steps`` steps, for timing a step.
+
+    The steps run as :func:`jaxrb.rollout` runs them, so the benchmarks time
+    what users run, keeping only the final state so the timing is the step's,
+    not a trajectory's. ``batched``: ``state`` has a leading world axis and
+    the rollout is ``jax.vmap``-ed over it (params shared).
+    """
+    def final(state, params):
+        states = rollout(step, state, params, num_steps, every=num_steps)
+        return jax.tree_util.tree_map(lambda a: a[0], states)
+
+    return jax.vmap(final, in_axes=(0, None)) if batched else final
