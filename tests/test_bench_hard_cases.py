@@ -17,7 +17,7 @@ from jaxrb.bench import hard_cases as hc
 
 SOFT = dict(contact_hertz=2.0)  # a 2 Hz contact spring: each joint sinks g/ω² ≈ 6 cm
 STACK = dict(heights=(3,), required=3, seconds=2.0)
-RATIO = dict(ratios=(100.0,), seconds=2.0)
+RATIO = dict(ratios=(100.0,), substeps=(8, 16), seconds=2.0)
 REST = dict(count=3, num_steps=240)
 PYRAMID = dict(rows=3, seconds=2.0)
 OVERLAP = dict(rows=3, seconds=2.0)
@@ -36,9 +36,10 @@ def test_tallest_stack_passes_and_fails_with_soft_contact():
 
 def test_mass_ratio_passes_and_fails_with_soft_contact():
     good = hc.mass_ratio(**RATIO)
-    assert good.passed, good.measured_text
+    assert good.passed and good.rows[0]["substeps"] == 8, good.measured_text
+    # A 10 Hz spring is soft at any substep count: every entry is tried and fails.
     broken = hc.mass_ratio(**RATIO, build=dict(contact_hertz=10.0))
-    assert not broken.passed, broken.measured_text
+    assert not broken.passed and broken.rows[0]["substeps"] == 16, broken.measured_text
 
 
 def test_long_rest_passes_and_fails_with_soft_contact():
