@@ -40,6 +40,8 @@ def test_mass_ratio_passes_and_fails_with_soft_contact():
     # A 10 Hz spring is soft at any substep count: every entry is tried and fails.
     broken = hc.mass_ratio(**RATIO, build=dict(contact_hertz=10.0))
     assert not broken.passed and broken.rows[0]["substeps"] == 16, broken.measured_text
+    with pytest.raises(ValueError, match="'substeps' setting"):
+        hc.mass_ratio(**RATIO, build=dict(substeps=4))
 
 
 def test_long_rest_passes_and_fails_with_soft_contact():

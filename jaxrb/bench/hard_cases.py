@@ -524,6 +524,9 @@ def mass_ratio(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseR
         substep counts.
     """
     settings = _settings("mass_ratio", overrides)
+    if "substeps" in settings["build"]:
+        raise ValueError("hard case 'mass_ratio': give the substep counts to try as the 'substeps' "
+                         "setting, not in 'build'")
     wall = time.perf_counter()
     rows, series, compile_s = [], [], 0.0
     for ratio in settings["ratios"]:
