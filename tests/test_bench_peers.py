@@ -18,7 +18,7 @@ TINY = dict(peers_scenes=("drop", "flip"), peers_engines=peers.ENGINES, peers_dr
             peers_drop_steps=20, peers_mujoco_worlds=2,
             peers_drop_jaxrb=(("impulse", 4 * peers.PEER_STEP, 4), ("penalty", peers.PEER_STEP, 1)),
             peers_flip_steps=(1 / 60,), peers_flip_horizon=4.0, peers_flip_configs=(("rk4", None),),
-            peers_repeats=1, peers_budget_s=0.5)
+            peers_stack_jaxrb=("impulse",), peers_pyramid_jaxrb=("impulse",), peers_repeats=1, peers_budget_s=0.5)
 MODULE_OF = {"mujoco": "mujoco", "mjx": "mujoco.mjx", "brax_spring": "brax", "brax_positional": "brax",
              "jax2d": "jax2d", "pymunk": "pymunk"}
 
@@ -147,7 +147,7 @@ def test_targets_on_made_up_numbers():
     assert by_text(targets, "compile ≤ ½").status == "PASS"  # 2.0 ≤ 2.45
     assert by_text(targets, "sinks < 2 mm").status == "MISSED"
     assert by_text(targets, "drifts < 1 mm").status == "PASS"
-    assert by_text(targets, "stack ≥ 3× Brax").status == "PASS"  # 6×
+    assert by_text(targets, "≥ 3× Brax").status == "PASS"  # 6×
     assert by_text(targets, "20× Jax2D").status == "PASS"  # 27×
     assert by_text(targets, "batch 256 > pymunk").status == "NOT MEASURED"
     assert by_text(targets, "still standing").status == "PASS"
@@ -166,6 +166,40 @@ def test_targets_on_made_up_numbers():
     assert "**MISSED**" in text and "**PASS**" in text and "**NOT MEASURED**" in text
 
 
+def test_every_jaxrb_setting_is_checked_against_the_scene_targets():
+    rows = [
+        row("stack", "jaxrb", 3.0e5, batch=16, bodies=10, setting="penalty", sink=1e-2, drift=0.0, stands=True),
+        row("stack", "jaxrb", 1.0e4, batch=16, bodies=10, setting="impulse", sink=1e-3, drift=1e-4, stands=True),
+        row("stack", "brax_spring", 0.5e5, batch=16, bodies=10, sink=0.117, drift=0.0, stands=True),
+        row("pyramid", "jaxrb", 6e5, batch=16, bodies=55, setting="penalty", sink=1e-2, drift=1e-3, stands=True),
+        row("pyramid", "jaxrb", 8e5, batch=256, bodies=55, setting="penalty", sink=1e-2, drift=1e-3,
+            stands=True),
+        row("pyramid", "jaxrb", 1e4, batch=16, bodies=55, setting="impulse", sink=1e-3, drift=1e-4, stands=True),
+        row("pyramid", "jax2d", 4e3, batch=16, bodies=55, sink=5e-2, drift=1e-3, stands=True),
+        row("pyramid", "pymunk", 5e5, batch=1, bodies=55, sink=1e-3, drift=1e-4, stands=True),
+    ]
+    status = {t.text: t.status for t in peers.evaluate_targets(rows)}
+    assert status["10-box stack, jaxrb penalty: sinks < 2 mm over 2 s"] == "MISSED"
+    assert status["10-box stack, jaxrb penalty: ≥ 3× Brax spring body-steps/s"] == "PASS"  # 6×
+    assert status["10-box stack, jaxrb impulse: sinks < 2 mm over 2 s"] == "PASS"
+    assert status["10-box stack, jaxrb impulse: ≥ 3× Brax spring body-steps/s"] == "MISSED"  # 0.2×
+    assert status["pyramid, jaxrb penalty: ≥ 20× Jax2D body-steps/s at the same batch"] == "PASS"  # 150×
+    assert status["pyramid, jaxrb penalty: at batch 256 > pymunk in one world"] == "PASS"  # 1.6×
+    assert status["pyramid, jaxrb impulse: ≥ 20× Jax2D body-steps/s at the same batch"] == "MISSED"  # 2.5×
+    assert status["pyramid, jaxrb impulse: at batch 256 > pymunk in one world"] == "NOT MEASURED"
+    with pytest.raises(ValueError, match="unknown jaxrb contact model 'soft'"):
+        peers.jaxrb_stack("soft", 1, 0.1, peers.QUICK)
+
+
+def test_a_broadphase_overflow_is_reported_and_does_not_stand(monkeypatch):
+    # 20 pairs for the pyramid's 135 near ones: contacts are dropped, so it must not count as standing.
+    monkeypatch.setitem(peers.STANDING_SETTINGS, "penalty", (
+        peers.PEER_STEP, 1, {"pyramid": dict(contact="penalty", broadphase="spheres", broadphase_capacity=20)}))
+    result = peers.jaxrb_pyramid("penalty", 1, 10 * peers.PEER_STEP, dict(peers.QUICK, peers_repeats=1))
+    assert result.metrics["overflow"] and not result.metrics["stands"]
+    assert "NO (broadphase overflow)" in peers.scene_table("pyramid", [result])
+
+
 def test_scene_table_gives_jaxrb_over_peer():
     rows = [row("drop", "jaxrb", 4.0e6, setting="mine", rest_offset=1e-4, rest_error=1e-4),
             row("drop", "brax_spring", 1.0e6, rest_offset=-1.2e-3, rest_error=1.2e-3)]
@@ -182,7 +216,7 @@ def test_failing_peer_becomes_a_note(monkeypatch):
     def broken(*args, **kwargs):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(peers, "jaxrb_stack", lambda batch, seconds, settings: row(
+    monkeypatch.setattr(peers, "jaxrb_stack", lambda model, batch, seconds, settings: row(
         "stack", "jaxrb", 1e5, batch=batch, bodies=10, sink=1e-3, drift=1e-4, stands=True))
     monkeypatch.setattr(peers, "mujoco_stack", broken)
     text, results = peers.peers_section(dict(TINY, peers_scenes=("stack",), peers_engines=("mujoco",)))

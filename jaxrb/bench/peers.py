@@ -18,12 +18,20 @@ peer's own scene API (Jax2D, pymunk):
   *sink* = how far the top box ends below its height with every box
   exactly touching (mean over worlds; a batched world starts lifted by
   0–1 mm, which is not sinking), *drift* = horizontal displacement of the
-  top box at the end (largest over worlds). jaxrb runs
-  it at dt = 1/60 s with 8 substeps and a 12-pair broadphase
-  (:data:`STACK_BUILD`).
+  top box at the end (largest over worlds). jaxrb runs it with impulse
+  contact at dt = 1/60 s with 8 substeps and a 12-pair broadphase
+  (:data:`STACK_BUILD`), and with penalty contact at the peers' h = 2 ms
+  (the same broadphase).
 * **pyramid**: the 55-box 2D pyramid (10 rows, 5 % gaps, μ = 0.5), jaxrb
   against Jax2D at the same batch and pymunk in one world; *stands* = the top
-  box moved less than 1 cm sideways and sank less than half a box.
+  box moved less than 1 cm sideways and sank less than half a box (and, for
+  jaxrb, its broadphase never ran out of pairs). jaxrb runs it with impulse
+  contact at its own setting and with penalty contact at h = 2 ms, both with
+  a 150-pair broadphase (:data:`PYRAMID_BUILD`); the peers step at 1/60 s
+  (body-s/s compares across step sizes).
+
+  Every jaxrb setting of a scene is a row of its own and is checked against
+  every target of the scene (:func:`evaluate_targets`).
 * **flip**: the torque-free intermediate-axis flip (inertia (0.3, 0.35,
   0.4) kg m², ω0 = (0.1, 15, 0.1) rad/s): largest flip-time error against
   :func:`jaxrb.analytic.flip_times` for MuJoCo C's RK4 (float64), MJX's RK4
@@ -38,10 +46,12 @@ so that they compute in float32 like jaxrb's throughput runs.
 
 Settings (:data:`QUICK`, :data:`FULL`; every key starts with ``peers_``):
 ``scenes`` and ``engines`` to run; ``drop_batch``/``drop_steps`` and
-``drop_jaxrb`` (jaxrb's (dt, substeps) pairs); ``mujoco_worlds`` (worlds in
-MuJoCo's C rollout loop); ``stack_batch``/``stack_seconds``/``stack_mjx``;
+``drop_jaxrb`` (jaxrb's (contact, dt, substeps) settings); ``mujoco_worlds`` (worlds in
+MuJoCo's C rollout loop); ``stack_batch``/``stack_seconds``/``stack_mjx`` and
+``stack_jaxrb`` (jaxrb's contact models, see :data:`STANDING_SETTINGS`);
 ``pyramid_batch``/``pyramid_seconds``/``pyramid_big_batch`` (jaxrb also at
-this batch, for the pymunk target; ``None`` to skip) and ``pyramid_big_seconds``; ``flip_steps``,
+this batch, for the pymunk target; ``None`` to skip), ``pyramid_big_seconds``
+and ``pyramid_jaxrb``; ``flip_steps``,
 ``flip_horizon`` and ``flip_configs`` (jaxrb (integrator, orientation) pairs;
 the best per h counts); ``repeats``/``budget_s`` for timing; ``with_jaxrb``
 (False: peers only).
@@ -79,6 +89,11 @@ JAXRB_BEST = dict(dt=1 / 60, substeps=4)  # jaxrb's own setting for contact scen
 #: pairs are its 9 neighbours: a bounding-sphere broadphase keeping 12 pairs
 #: gives the solver 176 rows instead of all pairs' 440.
 STACK_BUILD = dict(substeps=8, broadphase="spheres", broadphase_capacity=12)
+#: The pyramid's broadphase: 135 box pairs are near (bounding spheres) while it
+#: stands; 150 leaves 15 to spare (the default, 4 per body, is 220, and the
+#: narrowphase work grows with it: penalty at batch 256 ran 0.81 M body-steps/s
+#: with 220, 1.1 M with 150). An overflow is reported and fails "stands".
+PYRAMID_BUILD = dict(broadphase="spheres", broadphase_capacity=150)
 FRICTION = 0.5
 STACK_COUNT = 10
 PYRAMID_ROWS = 10
@@ -98,14 +113,24 @@ SCENE_TITLES = {"drop": "Box drop", "stack": "10-box stack", "pyramid": "2D 10-r
 #: both contact models at the peers' h = 2 ms (penalty being what Brax spring is).
 DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse", PEER_STEP, 1),
               ("penalty", PEER_STEP, 1))
+#: jaxrb's settings for the standing scenes, by contact model: (dt, substeps,
+#: extra Scene.build options per scene). Impulse at its own setting; penalty at
+#: the peers' h = 2 ms, as in the box drop (its default spring sinks the 3D
+#: column 11 mm there, 3.2 mm at 1 ms and 0.8 mm at 0.5 ms, batch 16, 5 s).
+STANDING_SETTINGS = {
+    "impulse": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], {"stack": STACK_BUILD, "pyramid": PYRAMID_BUILD}),
+    "penalty": (PEER_STEP, 1, {"stack": dict(STACK_BUILD, contact="penalty", substeps=1),
+                               "pyramid": dict(PYRAMID_BUILD, contact="penalty")}),
+}
 
 QUICK = dict(
     peers_scenes=("drop", "stack", "pyramid", "flip"), peers_engines=ENGINES,
     peers_drop_batch=64, peers_drop_steps=500, peers_mujoco_worlds=16,
     peers_drop_jaxrb=DROP_JAXRB,
     peers_stack_batch=4, peers_stack_seconds=1.0, peers_stack_mjx=False,
+    peers_stack_jaxrb=("impulse", "penalty"),
     peers_pyramid_batch=4, peers_pyramid_seconds=1.0, peers_pyramid_big_batch=None,
-    peers_pyramid_big_seconds=1.0,
+    peers_pyramid_big_seconds=1.0, peers_pyramid_jaxrb=("impulse", "penalty"),
     peers_flip_steps=(1 / 60, 1 / 240), peers_flip_horizon=6.0,
     peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")),
     peers_repeats=2, peers_budget_s=3.0, peers_with_jaxrb=True,
@@ -115,8 +140,10 @@ FULL = dict(
     peers_drop_batch=1024, peers_drop_steps=1000, peers_mujoco_worlds=256,
     peers_drop_jaxrb=DROP_JAXRB,
     peers_stack_batch=16, peers_stack_seconds=5.0, peers_stack_mjx=False,  # MJX: ~1.5 k body-steps/s, 4+ min
+    peers_stack_jaxrb=("impulse", "penalty"),
     peers_pyramid_batch=16, peers_pyramid_seconds=5.0, peers_pyramid_big_batch=256,
     peers_pyramid_big_seconds=1.0,  # the batch-256 run is for speed; standing is judged at peers_pyramid_batch
+    peers_pyramid_jaxrb=("impulse", "penalty"),
     peers_flip_steps=(1 / 60, 1 / 240, 1 / 1000), peers_flip_horizon=20.0,
     peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")),
     peers_repeats=3, peers_budget_s=5.0, peers_with_jaxrb=True,
@@ -436,28 +463,35 @@ def _stack_metrics(initial_top, final_top, rest_height: float) -> dict:
     return {"sink": sink, "drift": drift, "stands": stands}
 
 
-def _jaxrb_standing(scene: str, make_scene, top: int, rest_height: float, batch: int, seconds: float,
-                    settings: dict, build=None) -> PeerRow:
-    """jaxrb at its best setting for ``seconds`` (``build`` adds or overrides Scene.build options); sink and
-    drift of body ``top``."""
-    dt, substeps = JAXRB_BEST["dt"], JAXRB_BEST["substeps"]
+def _jaxrb_standing(scene: str, make_scene, top: int, rest_height: float, contact_model: str, batch: int,
+                    seconds: float, settings: dict) -> PeerRow:
+    """jaxrb with ``contact_model`` (:data:`STANDING_SETTINGS`) for ``seconds``; sink and drift of body ``top``."""
+    if contact_model not in STANDING_SETTINGS:
+        raise ValueError(f"peers: unknown jaxrb contact model {contact_model!r} for the {scene}; valid: "
+                         f"{', '.join(STANDING_SETTINGS)}")
+    dt, substeps, builds = STANDING_SETTINGS[contact_model]
+    build = builds[scene]
     num_steps = max(1, int(round(seconds / dt)))
     timing, initial, final, bodies = _jaxrb_batched(make_scene, dt, substeps, batch, num_steps, settings,
                                                     build)
+    metrics = _stack_metrics(initial[:, top], final[:, top], rest_height)
+    # A broadphase that ran out of pairs drops contacts: such a run does not count as standing.
+    metrics["overflow"] = bool(np.any(np.asarray(timing.output.overflow)))
+    metrics["stands"] = metrics["stands"] and not metrics["overflow"]
     return PeerRow(scene, "jaxrb", _setting_text(dt, substeps, build), dt, batch, bodies, num_steps,
-                   timing.compile_s, timing.run_s, _stack_metrics(initial[:, top], final[:, top], rest_height))
+                   timing.compile_s, timing.run_s, metrics)
 
 
-def jaxrb_stack(batch: int, seconds: float, settings: dict) -> PeerRow:
-    """jaxrb's 10-box column at its best setting for ``seconds``; sink and drift of the top box."""
-    return _jaxrb_standing("stack", lambda: contact.stack3d_scene(STACK_COUNT), -1, STACK_TOP_REST, batch,
-                           seconds, settings, STACK_BUILD)
+def jaxrb_stack(contact_model: str, batch: int, seconds: float, settings: dict) -> PeerRow:
+    """jaxrb's 10-box column with ``contact_model`` for ``seconds``; sink and drift of the top box."""
+    return _jaxrb_standing("stack", lambda: contact.stack3d_scene(STACK_COUNT), -1, STACK_TOP_REST,
+                           contact_model, batch, seconds, settings)
 
 
-def jaxrb_pyramid(batch: int, seconds: float, settings: dict) -> PeerRow:
-    """jaxrb's 55-box 2D pyramid at its best setting for ``seconds``; does it stand."""
+def jaxrb_pyramid(contact_model: str, batch: int, seconds: float, settings: dict) -> PeerRow:
+    """jaxrb's 55-box 2D pyramid with ``contact_model`` for ``seconds``; does it stand."""
     return _jaxrb_standing("pyramid", lambda: contact.pyramid2d_scene(PYRAMID_ROWS), PYRAMID_TOP,
-                           pyramid_centres()[PYRAMID_TOP][1], batch, seconds, settings)
+                           pyramid_centres()[PYRAMID_TOP][1], contact_model, batch, seconds, settings)
 
 
 def jaxrb_flip(integrator: str, orientation: Optional[str], h: float, t_end: float, dtype,
@@ -757,8 +791,8 @@ def _best_flip(rows, h, dtype) -> Optional[PeerRow]:
 def evaluate_targets(rows: Sequence[PeerRow]) -> List[Target]:
     """The issue-6 targets that this section measures, checked against ``rows``.
 
-    The box-drop targets are checked for every jaxrb drop row (its best setting
-    and h = 2 ms); speed ratios compare rows at the same batch. A target whose
+    The box-drop, stack and pyramid targets are checked for every jaxrb row of
+    the scene (each setting); speed ratios compare rows at the same batch. A target whose
     rows are missing (peer absent) is NOT MEASURED.
 
     Args:
@@ -784,26 +818,27 @@ def evaluate_targets(rows: Sequence[PeerRow]) -> List[Target]:
             targets.append(Target("drop", f"{tag} compile ≤ ½ Brax spring's",
                                   f"{mine.compile_s:.2f} s vs {spring.compile_s:.2f} s",
                                   bool(mine.compile_s <= 0.5 * spring.compile_s)))
-    mine = _find(rows, "stack", "jaxrb")
-    if mine is not None:
+    for mine in [r for r in rows if r.scene == "stack" and r.engine == "jaxrb"]:
+        tag = f"10-box stack, jaxrb {mine.setting}:"
         sink, drift = mine.metrics["sink"], mine.metrics["drift"]
         seconds = mine.num_steps * mine.h
-        targets.append(Target("stack", f"10-box stack sinks < 2 mm over {seconds:g} s",
+        targets.append(Target("stack", f"{tag} sinks < 2 mm over {seconds:g} s",
                               f"{1e3 * sink:.3f} mm", bool(abs(sink) < 2e-3)))
-        targets.append(Target("stack", f"10-box stack drifts < 1 mm over {seconds:g} s",
+        targets.append(Target("stack", f"{tag} drifts < 1 mm over {seconds:g} s",
                               f"{1e3 * drift:.3f} mm", bool(drift < 1e-3)))
-        targets.append(_speed_target("stack", "10-box stack ≥ 3× Brax spring body-steps/s", mine,
+        targets.append(_speed_target("stack", f"{tag} ≥ 3× Brax spring body-steps/s", mine,
                                      _find(rows, "stack", "brax_spring", batch=mine.batch), 3.0))
     jax2d_row = _find(rows, "pyramid", "jax2d")
-    small = _find(rows, "pyramid", "jaxrb", batch=jax2d_row.batch if jax2d_row else None)
-    if small is not None:
-        targets.append(_speed_target("pyramid", "pyramid ≥ 20× Jax2D body-steps/s at the same batch",
+    small_batch = jax2d_row.batch if jax2d_row else None
+    for small in [r for r in rows if r.scene == "pyramid" and r.engine == "jaxrb"
+                  and (small_batch is None or r.batch == small_batch) and r.batch != 256]:
+        tag = f"pyramid, jaxrb {small.setting}:"
+        targets.append(_speed_target("pyramid", f"{tag} ≥ 20× Jax2D body-steps/s at the same batch",
                                      small, jax2d_row, 20.0))
-        big = _find(rows, "pyramid", "jaxrb", batch=256)
-        targets.append(_speed_target("pyramid", "pyramid at batch 256 > pymunk in one world", big,
+        big = _find(rows, "pyramid", "jaxrb", setting=small.setting, batch=256)
+        targets.append(_speed_target("pyramid", f"{tag} at batch 256 > pymunk in one world", big,
                                      _find(rows, "pyramid", "pymunk"), 1.0))
-        targets.append(Target("pyramid", f"pyramid still standing after {small.num_steps * small.h:g} s "
-                                         "(jaxrb)",
+        targets.append(Target("pyramid", f"{tag} still standing after {small.num_steps * small.h:g} s",
                               f"top box drift {1e3 * small.metrics['drift']:.2f} mm, sink "
                               f"{1e3 * small.metrics['sink']:.2f} mm", bool(small.metrics["stands"])))
     steps = sorted({r.h for r in rows if r.scene == "flip"}, reverse=True)
@@ -887,7 +922,8 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
             attempt(engine, "drop", lambda e=engine: brax_drop(e, modules[e], batch, steps, settings))
     if "stack" in scenes:
         batch, seconds = settings["peers_stack_batch"], settings["peers_stack_seconds"]
-        attempt("jaxrb", "stack", lambda: jaxrb_stack(batch, seconds, settings))
+        for model in settings["peers_stack_jaxrb"]:
+            attempt("jaxrb", "stack", lambda m=model: jaxrb_stack(m, batch, seconds, settings))
         attempt("mujoco", "stack", lambda: mujoco_stack(modules["mujoco"], seconds, settings))
         attempt("brax_spring", "stack", lambda: brax_stack("brax_spring", modules["brax_spring"], batch,
                                                            seconds, settings))
@@ -895,10 +931,11 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
             attempt("mjx", "stack", lambda: mjx_stack(modules["mjx"], batch, seconds, settings))
     if "pyramid" in scenes:
         batch, seconds = settings["peers_pyramid_batch"], settings["peers_pyramid_seconds"]
-        attempt("jaxrb", "pyramid", lambda: jaxrb_pyramid(batch, seconds, settings))
-        if settings["peers_pyramid_big_batch"]:
-            attempt("jaxrb", "pyramid", lambda: jaxrb_pyramid(settings["peers_pyramid_big_batch"],
-                                                              settings["peers_pyramid_big_seconds"], settings))
+        big_batch, big_seconds = settings["peers_pyramid_big_batch"], settings["peers_pyramid_big_seconds"]
+        for model in settings["peers_pyramid_jaxrb"]:
+            attempt("jaxrb", "pyramid", lambda m=model: jaxrb_pyramid(m, batch, seconds, settings))
+            if big_batch:
+                attempt("jaxrb", "pyramid", lambda m=model: jaxrb_pyramid(m, big_batch, big_seconds, settings))
         attempt("jax2d", "pyramid", lambda: jax2d_pyramid(modules["jax2d"], batch, seconds, settings))
         attempt("pymunk", "pyramid", lambda: pymunk_pyramid(modules["pymunk"], seconds, settings))
     if "flip" in scenes:
@@ -919,7 +956,8 @@ def _metric_cells(scene: str, row: PeerRow) -> list:
     m = row.metrics
     if scene == "drop":
         return [fmt_fixed(1e3 * m["rest_offset"], 3), fmt_fixed(1e3 * m["rest_error"], 3)]
-    return [fmt_fixed(1e3 * m["sink"], 3), fmt_fixed(1e3 * m["drift"], 3), "yes" if m["stands"] else "NO"]
+    stands = "yes" if m["stands"] else ("NO (broadphase overflow)" if m.get("overflow") else "NO")
+    return [fmt_fixed(1e3 * m["sink"], 3), fmt_fixed(1e3 * m["drift"], 3), stands]
 
 
 def scene_table(scene: str, rows: Sequence[PeerRow]) -> str:
