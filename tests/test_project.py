@@ -44,7 +44,7 @@ def test_readme_python_examples_run():
 
 
 def test_readme_and_guide_links_point_at_files():
-    for document in ("README.md", "docs/guide.md"):
+    for document in ("README.md", "docs/guide.md", "docs/performance.md"):
         text = (ROOT / document).read_text()
         targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
         assert targets, document
