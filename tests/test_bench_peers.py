@@ -264,3 +264,14 @@ def test_stack_sink_is_measured_from_the_touching_height_not_the_lifted_start():
     assert metrics["sink"] == pytest.approx(1.5e-3, abs=1e-12)
     assert metrics["drift"] == 0.0 and metrics["stands"]
     assert peers.STACK_TOP_REST == pytest.approx(1.9)  # ten 0.2 m boxes: the top centre at 1.9 m
+
+
+def test_a_column_thrown_up_or_sunk_in_one_world_does_not_stand():
+    rest = np.array([[0.0, 0.0, peers.STACK_TOP_REST]] * 2)
+    thrown = rest.copy()
+    thrown[1, -1] += 40.0  # straight up, no sideways drift (a too-stiff penalty column did this)
+    assert not peers._stack_metrics(rest, thrown, peers.STACK_TOP_REST)["stands"]
+    sunk = rest.copy()
+    sunk[0, -1] -= 1.5 * peers.STAND_SINK  # one world of two sank 3/4 of a box: the mean (3/8) would pass
+    assert not peers._stack_metrics(rest, sunk, peers.STACK_TOP_REST)["stands"]
+    assert peers._stack_metrics(rest, rest, peers.STACK_TOP_REST)["stands"]

@@ -100,7 +100,7 @@ PYRAMID_ROWS = 10
 PYRAMID_TOP = PYRAMID_ROWS * (PYRAMID_ROWS + 1) // 2 - 1  # bodies are added row by row
 STACK_TOP_REST = HALF * (2 * STACK_COUNT - 1)  # m, the top box's centre with every box touching
 STAND_DRIFT = 0.01  # m, largest sideways move of the pyramid's top box that still "stands"
-STAND_SINK = HALF  # m, largest fall of the top box that still "stands" (half a box)
+STAND_SINK = HALF  # m, largest fall (or rise) of the top box that still "stands" (half a box)
 
 #: Every peer this module knows, in report order.
 ENGINES = ("mujoco", "mjx", "brax_spring", "brax_positional", "jax2d", "pymunk")
@@ -455,11 +455,15 @@ def _stack_metrics(initial_top, final_top, rest_height: float) -> dict:
     exactly touching, the closed form) minus its final height, so the 0–1 mm
     that :func:`world_shifts` lifts a batched world by is not counted as
     sinking; drift is the largest sideways move from each world's own start.
+    It stands when every world's top box is finite, drifted less than
+    :data:`STAND_DRIFT` and ended within :data:`STAND_SINK` of the rest height,
+    below or above (a column thrown straight up moves no sideways).
     """
     initial_top, final_top = np.asarray(initial_top), np.asarray(final_top)
     sink = float(np.mean(rest_height - final_top[:, -1]))
     drift = float(np.max(np.linalg.norm(final_top[:, :-1] - initial_top[:, :-1], axis=-1)))
-    stands = bool(np.all(np.isfinite(final_top))) and drift < STAND_DRIFT and sink < STAND_SINK
+    stands = (bool(np.all(np.isfinite(final_top))) and drift < STAND_DRIFT
+              and bool(np.all(np.abs(rest_height - final_top[:, -1]) < STAND_SINK)))
     return {"sink": sink, "drift": drift, "stands": stands}
 
 
