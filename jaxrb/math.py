@@ -26,6 +26,29 @@ def dot(a, b):
     return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
 
 
+def matmul(a, b):
+    """a @ b (numpy's rules) spelt out over the contracted axis, for small operands.
+
+    Under ``vmap`` a ``@`` becomes a batched dot_general: a library call over
+    thousands of tiny matrices (in a 10-box stack's box-box clipping one such
+    (8, 3) @ (3, 3) product took a fifth of the step). Spelt out, it fuses
+    into XLA's elementwise loops.
+
+    Args:
+        a: (..., m, k) matrices or a (k,) vector.
+        b: (..., k, n) matrices or a (k,) vector.
+
+    Returns:
+        The product: (..., m, n), (..., m), (..., n) or ().
+    """
+    terms = range(a.shape[-1])
+    if b.ndim == 1:
+        return sum(a[..., i] * b[i] for i in terms)
+    if a.ndim == 1:
+        return sum(a[i] * b[..., i, :] for i in terms)
+    return sum(a[..., :, i, None] * b[..., None, i, :] for i in terms)
+
+
 def cross(a, b):
     """3D cross product a × b.
 

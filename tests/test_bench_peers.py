@@ -193,8 +193,8 @@ def test_every_jaxrb_setting_is_checked_against_the_scene_targets():
 
 def test_a_broadphase_overflow_is_reported_and_does_not_stand(monkeypatch):
     # 20 pairs for the pyramid's 135 near ones: contacts are dropped, so it must not count as standing.
-    monkeypatch.setitem(peers.STANDING_SETTINGS, "penalty", (
-        peers.PEER_STEP, 1, {"pyramid": dict(contact="penalty", broadphase="spheres", broadphase_capacity=20)}))
+    monkeypatch.setitem(peers.STANDING_SETTINGS, "penalty", {"pyramid": (
+        peers.PEER_STEP, 1, dict(contact="penalty", broadphase="spheres", broadphase_capacity=20))})
     result = peers.jaxrb_pyramid("penalty", 1, 10 * peers.PEER_STEP, dict(peers.QUICK, peers_repeats=1))
     assert result.metrics["overflow"] and not result.metrics["stands"]
     assert "NO (broadphase overflow)" in peers.scene_table("pyramid", [result])

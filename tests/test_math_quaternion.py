@@ -85,6 +85,15 @@ def test_inverse3_and_matvec3():
     np.testing.assert_allclose(rbm.cross(vector, vector[::-1]), np.cross(vector, vector[::-1]), atol=1e-12)
 
 
+@pytest.mark.parametrize("shape_a, shape_b", [((8, 3), (3, 3)), ((4, 8, 3), (4, 3, 2)), ((15, 3), (3,)),
+                                              ((4, 8, 3), (3,)), ((9,), (9, 3)), ((2,), (4, 2, 3)), ((3,), (3,))])
+def test_matmul_matches_numpy(shape_a, shape_b):
+    a, b = RNG.normal(size=shape_a), RNG.normal(size=shape_b)
+    product = rbm.matmul(jnp.asarray(a), jnp.asarray(b))
+    assert product.shape == (a @ b).shape
+    np.testing.assert_allclose(product, a @ b, atol=1e-12)
+
+
 def test_rotate2_matches_rot2():
     angle, v = jnp.asarray(RNG.normal(size=5)), jnp.asarray(RNG.normal(size=(5, 2)))
     np.testing.assert_allclose(rbm.rotate2(angle, v), np.einsum("nij,nj->ni", rbm.rot2(angle), v), atol=1e-12)

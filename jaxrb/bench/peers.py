@@ -20,8 +20,8 @@ peer's own scene API (Jax2D, pymunk):
   0–1 mm, which is not sinking), *drift* = horizontal displacement of the
   top box at the end (largest over worlds). jaxrb runs it with impulse
   contact at dt = 1/60 s with 8 substeps and a 12-pair broadphase
-  (:data:`STACK_BUILD`), and with penalty contact at the peers' h = 2 ms
-  (the same broadphase).
+  (:data:`STACK_BUILD`), and with penalty contact at h = 1 ms with a spring
+  twice the default stiffness (:data:`STANDING_SETTINGS`; the same broadphase).
 * **pyramid**: the 55-box 2D pyramid (10 rows, 5 % gaps, μ = 0.5), jaxrb
   against Jax2D at the same batch and pymunk in one world; *stands* = the top
   box moved less than 1 cm sideways and sank less than half a box (and, for
@@ -114,14 +114,22 @@ SCENE_TITLES = {"drop": "Box drop", "stack": "10-box stack", "pyramid": "2D 10-r
 #: both contact models at the peers' h = 2 ms (penalty being what Brax spring is).
 DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse", PEER_STEP, 1),
               ("penalty", PEER_STEP, 1))
-#: jaxrb's settings for the standing scenes, by contact model: (dt, substeps,
-#: extra Scene.build options per scene). Impulse at its own setting; penalty at
-#: the peers' h = 2 ms, as in the box drop (its default spring sinks the 3D
-#: column 11 mm there, 3.2 mm at 1 ms and 0.8 mm at 0.5 ms, batch 16, 5 s).
+#: The penalty column's spring: √2 × the default frequency (0.03/h), so twice
+#: the stiffness. Measured at batch 16 over 5 s, the column sinks 11 mm with the
+#: default spring at h = 2 ms, 5.6 mm with this one; at h = 1 ms 3.2 mm with the
+#: default and 1.6 mm with this one; 4× the stiffness throws it up at both.
+STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz, at h = 1 ms
+#: jaxrb's settings for the standing scenes, by contact model and scene: (dt,
+#: substeps, extra Scene.build options). Impulse at its own setting. Penalty at
+#: the peers' h = 2 ms for the pyramid; the column needs half that step and
+#: the stiffer spring above to sink < 2 mm (its body-s/s column says what the
+#: smaller step costs).
 STANDING_SETTINGS = {
-    "impulse": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], {"stack": STACK_BUILD, "pyramid": PYRAMID_BUILD}),
-    "penalty": (PEER_STEP, 1, {"stack": dict(STACK_BUILD, contact="penalty", substeps=1),
-                               "pyramid": dict(PYRAMID_BUILD, contact="penalty")}),
+    "impulse": {"stack": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], STACK_BUILD),
+                "pyramid": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], PYRAMID_BUILD)},
+    "penalty": {"stack": (1e-3, 1, dict(STACK_BUILD, contact="penalty", substeps=1,
+                                        penalty_frequency=STACK_PENALTY_FREQUENCY)),
+                "pyramid": (PEER_STEP, 1, dict(PYRAMID_BUILD, contact="penalty"))},
 }
 
 QUICK = dict(
@@ -417,6 +425,8 @@ def _setting_text(dt: float, substeps: int, build=None) -> str:
     build = build or {}
     substeps = build.get("substeps", substeps)
     text = f"{build.get('contact', 'impulse')}, {fmt_step(dt)} s" + (f" × {substeps}" if substeps > 1 else "")
+    if "penalty_frequency" in build:
+        text += f", spring {build['penalty_frequency']:.3g} Hz"
     if "broadphase" in build:
         text += f", {build['broadphase']} broadphase ({build['broadphase_capacity']} pairs)"
     return text
@@ -474,8 +484,7 @@ def _jaxrb_standing(scene: str, make_scene, top: int, rest_height: float, contac
     if contact_model not in STANDING_SETTINGS:
         raise ValueError(f"peers: unknown jaxrb contact model {contact_model!r} for the {scene}; valid: "
                          f"{', '.join(STANDING_SETTINGS)}")
-    dt, substeps, builds = STANDING_SETTINGS[contact_model]
-    build = builds[scene]
+    dt, substeps, build = STANDING_SETTINGS[contact_model][scene]
     num_steps = max(1, int(round(seconds / dt)))
     timing, initial, final, bodies = _jaxrb_batched(make_scene, dt, substeps, batch, num_steps, settings,
                                                     build)

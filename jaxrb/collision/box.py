@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.collision.contacts import Contacts
-from jaxrb.math import cross, dot, safe_norm, safe_normalize
+from jaxrb.math import cross, dot, matmul, safe_norm, safe_normalize
 
 #: Edge-edge axes a_i x b_j with |a_i x b_j| (the sine of the angle between the
 #: edges) below this are left out of the separating-axis test: they duplicate a
@@ -225,7 +225,7 @@ def _face_manifold(half_ref, origin_ref, rot_ref, k, half_inc, origin_inc, rot_i
 
     poly, valid = _canonical_slots(poly, count)
     scaled = jnp.stack([basis[0], basis[1], 0.5 * basis[2]])
-    return poly[:, 2], center_ref + poly @ scaled, valid
+    return poly[:, 2], center_ref + matmul(poly, scaled), valid
 
 
 # Slot directions of the face manifold in the reference face's (u, v) frame, at
@@ -270,7 +270,7 @@ def _canonical_slots(poly, count):
     select = ((owned[:, None] & (pick[:, None] == index[None, :]))
               | (free[:, None] & left[None, :] & (rank_free[:, None] == rank_left[None, :])))
     select = select.astype(dtype)
-    return select @ poly, jnp.sum(select, axis=1) > 0.0
+    return matmul(select, poly), jnp.sum(select, axis=1) > 0.0
 
 
 def _edge_contact(half_a, origin_a, rot_a, i, half_b, origin_b, rot_b, j, normal):
@@ -369,9 +369,10 @@ def box_box(geom_a, geom_b, pose_a, pose_b):
     edge_axes = crosses / jnp.sqrt(jnp.where(edge_ok, cross_sq, 1.0))[:, None]
     axes = jnp.concatenate([axes_a, axes_b, edge_axes])
 
-    reach_a = jnp.abs(axes @ rot_a) @ half_a
-    reach_b = jnp.abs(axes @ rot_b) @ half_b
-    sep = jnp.abs(axes @ delta) - reach_a - reach_b                     # (15,)
+    # matmul, not @: under vmap @ is a library call per pair (see jaxrb.math.matmul).
+    reach_a = matmul(jnp.abs(matmul(axes, rot_a)), half_a)
+    reach_b = matmul(jnp.abs(matmul(axes, rot_b)), half_b)
+    sep = jnp.abs(matmul(axes, delta)) - reach_a - reach_b  # (15,)
 
     abs_tol = ABS_TOL * size
     best_a, sep_a = jnp.argmax(sep[:3]), jnp.max(sep[:3])

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
 from jaxrb.dynamics import inverse_inertia
-from jaxrb.math import cross, cross2, cross_scalar2, matvec3, safe_div, safe_norm
+from jaxrb.math import cross, cross2, cross_scalar2, matmul, matvec3, safe_div, safe_norm
 from jaxrb.types import Model, Params, State
 
 
@@ -61,7 +61,7 @@ def world_inverse_inertia(model: Model, params: Params, state: State, padded: bo
     body_inverse = inverse_inertia(params, model.dim)
     if model.dim == 3:
         rotation = quat_ops.to_rotation_matrix(state.quat)
-        body_inverse = jnp.einsum("nij,njk,nlk->nil", rotation, body_inverse, rotation)
+        body_inverse = matmul(matmul(rotation, body_inverse), jnp.swapaxes(rotation, -1, -2))
     return pad(body_inverse) if padded else body_inverse
 
 
