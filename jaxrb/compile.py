@@ -8,24 +8,15 @@ same reduction costs a few: measured on 2 cores, the penalty box drop runs at
 0.90 M body-steps/s with them and 1.72 M without (compile 1.5 s → 1.3 s), the
 impulse box drop at 160 k and 187 k. So on CPU :func:`jit` keeps YNNPACK for
 dots and convolutions (where a library wins) and leaves reductions and
-elementwise fusions to XLA.
+elementwise fusions to XLA. On other backends, or where the installed jaxlib
+does not know the option, it is plain ``jax.jit``. (XLA's older fusion
+emitters, ``xla_cpu_use_fusion_emitters=False``, run batched steps up to 2×
+faster but change float32 rounding enough to fail the float32 flip target,
+so they are not set: docs/performance.md, section 6.)
 
-It also turns off XLA's newer CPU fusion emitters
-(``xla_cpu_use_fusion_emitters``) in favour of its older loop emitters, which
-vectorise the step's short-axis arithmetic across worlds better. Measured on
-2 cores, float32, 1 000 steps at batch 1 024 (new → old emitters): the
-8-box free-body scene 0.87 → 0.53 s (semi-implicit) and 1.55 → 0.87 s (RK4),
-the tumbler 104 → 46 ms, the penalty box drop 0.45–0.55 → 0.36–0.40 s; the
-10-box penalty stack at batch 16 runs about 1.1–1.2× faster; every compile is
-20–40 % shorter. The impulse scenes and the 55-box pyramid at batch 16 stay
-within the ±15 % run-to-run noise.
-
-On other backends, or where the installed jaxlib does not know the options,
-:func:`jit` is plain ``jax.jit``. ``jax.jit`` of a jaxrb function is still
-correct, only slower on CPU; setting ``XLA_FLAGS`` to
-``--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_DOT
---xla_cpu_use_fusion_emitters=false`` before JAX starts has the same effect
-process-wide.
+``jax.jit`` of a jaxrb function is still correct, only slower on CPU; setting
+``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_DOT``
+before JAX starts has the same effect process-wide.
 """
 
 from __future__ import annotations
@@ -40,7 +31,6 @@ CPU_COMPILER_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type": ",".join([
         "LIBRARY_FUSION_TYPE_DOT", "LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT",
         "LIBRARY_FUSION_TYPE_INDIVIDUAL_CONVOLUTION"]),
-    "xla_cpu_use_fusion_emitters": False,
 }
 
 
