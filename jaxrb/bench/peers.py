@@ -118,7 +118,8 @@ DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse",
 #: the stiffness. Measured at batch 16 over 5 s, the column sinks 11 mm with the
 #: default spring at h = 2 ms, 5.6 mm with this one; at h = 1 ms 3.2 mm with the
 #: default and 1.6 mm with this one; 4× the stiffness throws it up at both.
-STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz, at h = 1 ms
+STACK_PENALTY_STEP = 1e-3  # s
+STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / STACK_PENALTY_STEP  # Hz
 #: jaxrb's settings for the standing scenes, by contact model and scene: (dt,
 #: substeps, extra Scene.build options). Impulse at its own setting. Penalty at
 #: the peers' h = 2 ms for the pyramid; the column needs half that step and
@@ -127,7 +128,7 @@ STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz, at h = 1 ms
 STANDING_SETTINGS = {
     "impulse": {"stack": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], STACK_BUILD),
                 "pyramid": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], PYRAMID_BUILD)},
-    "penalty": {"stack": (1e-3, 1, dict(STACK_BUILD, contact="penalty", substeps=1,
+    "penalty": {"stack": (STACK_PENALTY_STEP, 1, dict(STACK_BUILD, contact="penalty", substeps=1,
                                         penalty_frequency=STACK_PENALTY_FREQUENCY)),
                 "pyramid": (PEER_STEP, 1, dict(PYRAMID_BUILD, contact="penalty"))},
 }
