@@ -2,6 +2,11 @@
 
 Quaternions are (w, x, y, z) with w the scalar part, stored on the last axis,
 and rotate body-frame vectors into the world frame: v_world = q v_body q*.
+
+The ``*_parts`` functions are the same algebra on component tuples (a
+quaternion as a tuple of 4 arrays, a vector as a tuple of 3): the array
+functions unpack, call them and stack, and the component-carrying rollout
+(:mod:`jaxrb.plane_penalty`) calls them directly.
 """
 
 from __future__ import annotations
@@ -15,6 +20,27 @@ def _parts(q):
     return q[..., 0], q[..., 1], q[..., 2], q[..., 3]
 
 
+def _vector_parts(v):
+    return v[..., 0], v[..., 1], v[..., 2]
+
+
+def multiply_parts(a, b):
+    """:func:`multiply` on component tuples.
+
+    Args:
+        a, b: 4-tuples (w, x, y, z) of arrays, broadcast against each other.
+
+    Returns:
+        The 4-tuple of a ⊗ b's components.
+    """
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
+
+
 def multiply(a, b):
     """Hamilton product a ⊗ b (the rotation b followed by a).
 
@@ -24,14 +50,7 @@ def multiply(a, b):
     Returns:
         (..., 4) the products.
     """
-    aw, ax, ay, az = _parts(a)
-    bw, bx, by, bz = _parts(b)
-    return jnp.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
+    return jnp.stack(multiply_parts(_parts(a), _parts(b)), axis=-1)
 
 
 def conjugate(q):
@@ -74,18 +93,29 @@ def rotate(q, v):
     Returns:
         (..., 3) the world-frame vectors.
     """
-    w, x, y, z = _parts(q)
-    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    return jnp.stack(rotate_parts(_parts(q), _vector_parts(v)), axis=-1)
+
+
+def rotate_parts(q, v):
+    """:func:`rotate` on component tuples.
+
+    Args:
+        q: 4-tuple (w, x, y, z) of arrays, a non-zero quaternion, body to world.
+        v: 3-tuple of (...) arrays, a body-frame vector.
+
+    Returns:
+        The 3-tuple of R(q) v's components.
+    """
+    w, x, y, z = q
+    vx, vy, vz = v
     inv_norm_sq = 1.0 / (w * w + x * x + y * y + z * z)
     # v' = v + (2w (u x v) + 2 u x (u x v)) / |q|² with u = (x, y, z): no matrix needed.
     tx = 2.0 * inv_norm_sq * (y * vz - z * vy)
     ty = 2.0 * inv_norm_sq * (z * vx - x * vz)
     tz = 2.0 * inv_norm_sq * (x * vy - y * vx)
-    return jnp.stack([
-        vx + w * tx + (y * tz - z * ty),
-        vy + w * ty + (z * tx - x * tz),
-        vz + w * tz + (x * ty - y * tx),
-    ], axis=-1)
+    return (vx + w * tx + (y * tz - z * ty),
+            vy + w * ty + (z * tx - x * tz),
+            vz + w * tz + (x * ty - y * tx))
 
 
 def rotate_inverse(q, v):
@@ -110,16 +140,26 @@ def to_rotation_matrix(q):
     Returns:
         (..., 3, 3) rotation matrices R with R v = q v q*.
     """
-    w, x, y, z = _parts(q)
+    rows = rotation_matrix_parts(_parts(q))
+    return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def rotation_matrix_parts(q):
+    """:func:`to_rotation_matrix` on component tuples.
+
+    Args:
+        q: 4-tuple (w, x, y, z) of arrays, a unit quaternion.
+
+    Returns:
+        3 rows of 3 arrays: ``R[i][j]`` is entry (i, j) of R(q).
+    """
+    w, x, y, z = q
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
     wx, wy, wz = w * x, w * y, w * z
-    rows = [
-        [1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
-        [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
-        [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)],
-    ]
-    return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+    return ((1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
+            (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
+            (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)))
 
 
 def _half_angle_terms(theta_sq):
@@ -193,3 +233,56 @@ def integrate_exp_map(q, angvel, h):
 
 
 ORIENTATION_UPDATES = {"first_order": integrate_first_order, "exp_map": integrate_exp_map}
+
+
+def normalize_parts(q):
+    """:func:`normalize` on component tuples.
+
+    Args:
+        q: 4-tuple (w, x, y, z) of arrays, any length.
+
+    Returns:
+        The 4-tuple of the unit quaternion; the identity (with a zero
+        gradient) where q = 0.
+    """
+    norm_sq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+    nonzero = norm_sq > 0.0
+    norm = jnp.sqrt(jnp.where(nonzero, norm_sq, 1.0))
+    identity = (1.0, 0.0, 0.0, 0.0)
+    return tuple(jnp.where(nonzero, part / norm, fallback) for part, fallback in zip(q, identity))
+
+
+def integrate_first_order_parts(q, angvel, h):
+    """:func:`integrate_first_order` on component tuples.
+
+    Args:
+        q: 4-tuple (w, x, y, z) of arrays, unit quaternions, body to world.
+        angvel: 3-tuple of (...) arrays, world-frame angular velocity ω (rad/s).
+        h: () time step (s).
+
+    Returns:
+        The 4-tuple of the advanced unit quaternion.
+    """
+    change = multiply_parts((jnp.zeros_like(angvel[0]),) + tuple(angvel), q)
+    return normalize_parts(tuple(a + (0.5 * h) * b for a, b in zip(q, change)))
+
+
+def integrate_exp_map_parts(q, angvel, h):
+    """:func:`integrate_exp_map` on component tuples.
+
+    Args:
+        q: 4-tuple (w, x, y, z) of arrays, unit quaternions, body to world.
+        angvel: 3-tuple of (...) arrays, world-frame angular velocity ω (rad/s).
+        h: () time step (s).
+
+    Returns:
+        The 4-tuple of the advanced unit quaternion.
+    """
+    rotvec = tuple(h * part for part in angvel)
+    cos_half, sinc_half = _half_angle_terms(rotvec[0] * rotvec[0] + rotvec[1] * rotvec[1]
+                                            + rotvec[2] * rotvec[2])
+    turn = (cos_half,) + tuple(sinc_half * part for part in rotvec)
+    return normalize_parts(multiply_parts(turn, q))
+
+
+ORIENTATION_UPDATES_PARTS = {"first_order": integrate_first_order_parts, "exp_map": integrate_exp_map_parts}

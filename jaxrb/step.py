@@ -14,6 +14,7 @@ from jaxrb.contact.common import carried_impulses, pad
 from jaxrb.contact.penalty import penalty_wrench
 from jaxrb.dynamics import net_wrench
 from jaxrb.integrators import INTEGRATORS, PHASES
+from jaxrb.plane_penalty import PlanePenalty, supports as plane_penalty_supports
 from jaxrb.types import Model, Params, State, Wrench
 
 
@@ -50,6 +51,8 @@ def make_step(model: Model) -> Callable:
         return state.replace(time=state.time + params.dt)
 
     step.model = model
+    # rollout carries this model's state on components (jaxrb.plane_penalty).
+    step.plane_penalty = PlanePenalty(model) if plane_penalty_supports(model) else None
     return step
 
 
@@ -191,6 +194,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
 
     Returns:
         State whose arrays have a leading axis of length num_steps // every.
+
+    For a 3D penalty-contact scene whose only contacts are with planes (and
+    the semi-implicit integrator), the scan runs ``step``'s component form
+    from :mod:`jaxrb.plane_penalty`, about 2.5× faster on CPU; its states
+    equal ``step``'s to float rounding, not bit for bit.
     """
     if num_steps < 1 or every < 1 or num_steps % every:
         raise ValueError(f"rollout: num_steps ({num_steps}) must be a positive multiple of "
@@ -200,15 +208,26 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         applied = jax.tree_util.tree_map(
             lambda a: a.reshape((num_saved, every) + a.shape[1:]), applied)
 
+    # The scan carries ``carried`` and steps it with ``advance_one``: the State
+    # itself, or for a plane-penalty model its components (same physics,
+    # equal to float rounding; see jaxrb.plane_penalty for why).
+    fast = getattr(step, "plane_penalty", None)
+    if fast is None:
+        carried, advance_one, saved = state, lambda c, a: step(c, params, a), lambda c: c
+    else:
+        carried, prepared = fast.to_carry(state, params), fast.prepare(params)
+        advance_one = lambda c, a: fast.step(c, params, a, prepared)
+        saved = lambda c: fast.from_carry(c, state, params)
+
     def advance(current, applied_chunk):
         def one(inner, applied_now):
-            return step(inner, params, applied_now), None
+            return advance_one(inner, applied_now), None
 
         current, _ = jax.lax.scan(one, current, applied_chunk, length=every)
-        return current, current
+        return current, saved(current)
 
     if not checkpoint:
-        _, states = jax.lax.scan(advance, state, applied, length=num_saved)
+        _, states = jax.lax.scan(advance, carried, applied, length=num_saved)
         return states
 
     segment = _segment_length(num_saved, checkpoint)
@@ -221,5 +240,5 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
     def run_segment(current, applied_segment):
         return jax.lax.scan(advance, current, applied_segment, length=segment)
 
-    _, states = jax.lax.scan(run_segment, state, applied, length=num_segments)
+    _, states = jax.lax.scan(run_segment, carried, applied, length=num_segments)
     return jax.tree_util.tree_map(lambda a: a.reshape((num_saved,) + a.shape[2:]), states)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+from jaxrb import components as vec
 from jaxrb import math as rbm
 from jaxrb import quaternion as Q
 
@@ -97,6 +98,48 @@ def test_matmul_matches_numpy(shape_a, shape_b):
 def test_rotate2_matches_rot2():
     angle, v = jnp.asarray(RNG.normal(size=5)), jnp.asarray(RNG.normal(size=(5, 2)))
     np.testing.assert_allclose(rbm.rotate2(angle, v), np.einsum("nij,nj->ni", rbm.rot2(angle), v), atol=1e-12)
+
+
+def parts(array):
+    return tuple(array[..., i] for i in range(array.shape[-1]))
+
+
+def test_component_orientation_updates_equal_the_array_ones():
+    q, w = random_quats(6), jnp.asarray(RNG.normal(size=(6, 3)) * 3.0)
+    w = w.at[0].set(0.0)  # the small-angle branch of the exp map too
+    for name, update in Q.ORIENTATION_UPDATES.items():
+        expected = update(q, w, 0.05)
+        got = jnp.stack(Q.ORIENTATION_UPDATES_PARTS[name](parts(q), parts(w), 0.05), axis=-1)
+        np.testing.assert_allclose(got, expected, atol=1e-12, err_msg=name)
+    np.testing.assert_allclose(jnp.stack(Q.normalize_parts(parts(jnp.zeros((2, 4)))), axis=-1),
+                               np.tile([1.0, 0.0, 0.0, 0.0], (2, 1)))
+
+
+def test_component_vectors_with_structural_zeros_match_numpy():
+    a, b = RNG.normal(size=(2, 5, 3))
+    matrix = RNG.normal(size=(5, 3, 3))
+    as_parts = lambda x: tuple(jnp.asarray(x[..., i]) for i in range(3))
+    stacked = lambda v: np.stack([np.broadcast_to(np.asarray(part), (5,)) for part in v], axis=-1)
+    for zero in range(3):  # a with a structural zero in each place, as a plane's normal makes
+        a_zero = a.copy()
+        a_zero[:, zero] = 0.0
+        a_parts = tuple(0.0 if i == zero else jnp.asarray(a[:, i]) for i in range(3))
+        np.testing.assert_allclose(vec.dot(a_parts, as_parts(b)), np.sum(a_zero * b, axis=-1), atol=1e-12)
+        np.testing.assert_allclose(stacked(vec.cross(a_parts, as_parts(b))), np.cross(a_zero, b), atol=1e-12)
+        np.testing.assert_allclose(stacked(vec.cross(as_parts(b), a_parts)), np.cross(b, a_zero), atol=1e-12)
+        np.testing.assert_allclose(stacked(vec.sub(a_parts, as_parts(b))), a_zero - b, atol=1e-12)
+        np.testing.assert_allclose(stacked(vec.sub(as_parts(b), a_parts)), b - a_zero, atol=1e-12)
+        np.testing.assert_allclose(stacked(vec.add(a_parts, as_parts(b))), a_zero + b, atol=1e-12)
+        rows = tuple(tuple(jnp.asarray(matrix[:, i, j]) for j in range(3)) for i in range(3))
+        np.testing.assert_allclose(stacked(vec.matvec(rows, a_parts)), np.einsum("nij,nj->ni", matrix, a_zero),
+                                   atol=1e-12)
+        np.testing.assert_allclose(stacked(vec.matvec_transposed(rows, a_parts)),
+                                   np.einsum("nji,nj->ni", matrix, a_zero), atol=1e-12)
+    assert vec.is_zero(vec.dot((0.0, 0.0, 0.0), as_parts(b)))
+    limit = jnp.asarray(np.abs(RNG.normal(size=5)))
+    clamped = stacked(vec.clamp_to_disc(as_parts(a), limit))
+    expected = a * np.minimum(1.0, np.asarray(limit) / np.linalg.norm(a, axis=-1))[:, None]
+    np.testing.assert_allclose(clamped, expected, atol=1e-12)
 
 
 # --- gradients (float64, both modes, second order) ---

@@ -342,7 +342,8 @@ def _stack_geometry(model, bodies, dtype):
     return tuple(jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0])))
 
 
-def _mix_friction(mu_a, mu_b):
+def mix_friction(mu_a, mu_b):
+    """Mixed friction √(μ_A μ_B) of two surfaces, 0 (with a finite gradient) where either is 0."""
     product = mu_a * mu_b
     positive = product > 0.0
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, product, 1.0)), 0.0)
@@ -413,7 +414,7 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
             body_a=repeat(body_a), body_b=repeat(body_b),
             dist=found.dist.reshape(-1), normal=found.normal.reshape(-1, model.dim),
             point=found.point.reshape(-1, model.dim), valid=(found.valid & in_use[:, None]).reshape(-1),
-            friction=repeat(_mix_friction(mu_a, mu_b)), restitution=repeat(jnp.maximum(e_a, e_b)),
+            friction=repeat(mix_friction(mu_a, mu_b)), restitution=repeat(jnp.maximum(e_a, e_b)),
             key=key))
     merged = {name: jnp.concatenate([part[name] for part in parts]) for name in parts[0]}
     take = row_taker(model, merged["body_a"], merged["body_b"])

@@ -1,0 +1,116 @@
+"""3-vectors as tuples of arrays, with structural zeros: the algebra of :mod:`jaxrb.plane_penalty`.
+
+A vector is a 3-tuple of parts, each an array of any shape (all broadcast
+together), or the Python float ``0.0`` where a part is zero by construction
+(a component of an axis-aligned plane's normal, and whatever it multiplies):
+such a part is never computed, so e.g. the dot product with (0, 0, 1) is the
+z part alone. A 3×3 matrix is a tuple of 3 rows of 3 parts.
+
+Written on components because, under ``vmap`` on XLA's CPU backend, math on
+``(..., 3)`` arrays runs as narrow loops (DESIGN.md, "Speed"); the array
+versions of these functions are in :mod:`jaxrb.math`.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def is_zero(part) -> bool:
+    """Whether ``part`` is a structural zero (the Python float 0.0)."""
+    return isinstance(part, float) and part == 0.0
+
+
+def mul(scale, part):
+    """scale · part, a structural zero if either is."""
+    return 0.0 if is_zero(part) or is_zero(scale) else scale * part
+
+
+def dot(a, b):
+    """a · b over the non-zero products."""
+    terms = [x * y for x, y in zip(a, b) if not (is_zero(x) or is_zero(y))]
+    return sum(terms[1:], terms[0]) if terms else 0.0
+
+
+def cross(a, b):
+    """a × b."""
+    def term(x, y, z, w):  # x y − z w
+        return sub((mul(x, y),), (mul(z, w),))[0]
+    return (term(a[1], b[2], a[2], b[1]), term(a[2], b[0], a[0], b[2]), term(a[0], b[1], a[1], b[0]))
+
+
+def along(scale, vector):
+    """scale · vector."""
+    return tuple(mul(scale, part) for part in vector)
+
+
+def add(a, b):
+    """a + b."""
+    return tuple(y if is_zero(x) else (x if is_zero(y) else x + y) for x, y in zip(a, b))
+
+
+def sub(a, b):
+    """a − b."""
+    return tuple((-y if not is_zero(y) else 0.0) if is_zero(x) else (x if is_zero(y) else x - y)
+                 for x, y in zip(a, b))
+
+
+def matvec(matrix, vector):
+    """matrix (3 rows of 3 arrays) times vector (3 parts)."""
+    return tuple(dot(row, vector) for row in matrix)
+
+
+def matvec_transposed(matrix, vector):
+    """matrixᵀ · vector."""
+    return tuple(dot(tuple(row[j] for row in matrix), vector) for j in range(3))
+
+
+def where(condition, vector):
+    """vector where condition, else 0 (zero parts stay zero)."""
+    return tuple(part if is_zero(part) else jnp.where(condition, part, 0.0) for part in vector)
+
+
+def safe_length(vector):
+    """|v| with a zero gradient at v = 0 (the double-where of :func:`jaxrb.math.safe_norm`)."""
+    sq = dot(vector, vector)
+    nonzero = sq > 0.0
+    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+
+
+def clamp_to_disc(vector, limit):
+    """:func:`jaxrb.contact.common.clamp_to_disc` on components."""
+    length = safe_length(vector)
+    nonzero = length != 0.0
+    scale = jnp.where(length >= limit, jnp.where(nonzero, limit / jnp.where(nonzero, length, 1.0), 0.0),
+                      1.0)
+    return along(scale, vector)
+
+
+def materialize(vector, params):
+    """``vector`` computed once and stored, not recomputed inside each of its consumers.
+
+    XLA's CPU backend fuses an elementwise producer into every consumer and
+    recomputes it there: the contact force of each row fed six per-body sums
+    (force and torque), and each re-derived the whole contact law. A
+    conditional is a fusion boundary XLA keeps, so its operands are computed
+    once; ``params.dt > 0`` always holds (Scene.build validates dt) and is
+    not batched unless dt itself is swept, where the conditional becomes a
+    select and the result is the same. The penalty box drop at batch 1 024
+    ran 15 % faster with it (docs/performance.md, section 7).
+    """
+    present = [i for i, part in enumerate(vector) if not is_zero(part)]
+    stored = jax.lax.cond(params.dt > 0.0, lambda parts: parts,
+                          lambda parts: tuple(jnp.zeros_like(part) for part in parts),
+                          tuple(vector[i] for i in present))
+    return tuple(stored[present.index(i)] if i in present else 0.0 for i in range(3))
+
+
+def split(array):
+    """(..., k) array -> k-tuple of (...) arrays."""
+    return tuple(array[..., i] for i in range(array.shape[-1]))
+
+
+def matrix_parts(matrices):
+    """(n, 3, 3) -> rows of (n,) entries."""
+    return tuple(tuple(matrices[..., i, j] for j in range(3)) for i in range(3))
