@@ -16,6 +16,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxrb.math import safe_div, safe_sqrt
+
 
 def is_zero(part) -> bool:
     """Whether ``part`` is a structural zero (the Python float 0.0)."""
@@ -72,19 +74,14 @@ def where(condition, vector):
 
 
 def safe_length(vector):
-    """|v| with a zero gradient at v = 0 (the double-where of :func:`jaxrb.math.safe_norm`)."""
-    sq = dot(vector, vector)
-    nonzero = sq > 0.0
-    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+    """|v| with a zero gradient at v = 0 (as :func:`jaxrb.math.safe_norm`)."""
+    return safe_sqrt(dot(vector, vector))
 
 
 def clamp_to_disc(vector, limit):
-    """:func:`jaxrb.contact.common.clamp_to_disc` on components."""
+    """:func:`jaxrb.contact.common.clamp_to_disc` on components: v scaled to length <= limit."""
     length = safe_length(vector)
-    nonzero = length != 0.0
-    scale = jnp.where(length >= limit, jnp.where(nonzero, limit / jnp.where(nonzero, length, 1.0), 0.0),
-                      1.0)
-    return along(scale, vector)
+    return along(jnp.where(length >= limit, safe_div(limit, length), 1.0), vector)
 
 
 def materialize(vector, params):

@@ -99,9 +99,20 @@ def safe_norm(x, axis=-1, keepdims=False):
     Returns:
         (...) norms, or (..., 1) with ``keepdims``.
     """
-    sq = jnp.sum(x * x, axis=axis, keepdims=keepdims)
-    nonzero = sq > 0.0
-    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+    return safe_sqrt(jnp.sum(x * x, axis=axis, keepdims=keepdims))
+
+
+def safe_sqrt(x):
+    """√x for x >= 0 whose gradient at x = 0 is 0 instead of infinite.
+
+    Args:
+        x: (...) non-negative values (squared lengths).
+
+    Returns:
+        (...) the square roots.
+    """
+    nonzero = x > 0.0
+    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, x, 1.0)), 0.0)
 
 
 def safe_div(num, den, fallback=0.0):

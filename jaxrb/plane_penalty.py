@@ -3,9 +3,9 @@
 :func:`jaxrb.step.rollout` scans ``make_step``'s step over time. For one kind
 of scene it scans this module's step instead: 3D, ``contact="penalty"``,
 ``integrator="semi_implicit"``, and every contact pair a shape (box, sphere,
-capsule or point set) against a static plane — a box or a sphere dropped on
-the ground, a batch of such worlds, most system-identification scenes. It
-is the same physics, stage for stage (:mod:`jaxrb.contact.penalty`'s law and
+capsule or point set) against a static plane — boxes, spheres and capsules
+dropped, thrown or slid on the ground, and batches of such worlds. It is
+the same physics, stage for stage (:mod:`jaxrb.contact.penalty`'s law and
 friction models, :mod:`jaxrb.integrators`' semi-implicit phases, the plane
 kernels of :mod:`jaxrb.collision.plane` with the speculative margin of
 :func:`jaxrb.collision.pairs.detect`), written on component tuples, and the
@@ -15,8 +15,9 @@ Why a second form: on XLA's CPU backend a step written on ``(n, 3)``
 arrays ends each stage in a concatenate whose fused loop picks a component
 per element, unvectorised, recomputing the chain behind it for each
 (docs/performance.md, sections 2 and 3); carrying components through the
-scan removes every such join, and the penalty box drop at batch 1 024 runs
-about 2.5× faster (section 7). The step also carries each body's rotation
+scan removes every such join: the penalty box drop at batch 1 024 runs
+2.4× faster, its batch-1 gradient 1.6× faster, only a batch-1 forward
+rollout 1.7× slower (section 7). The step also carries each body's rotation
 matrix, computed once at the end of the step before: XLA duplicates a
 producer into every consumer, and the 8 contact rows of a box each re-derived
 it from the quaternion.
@@ -39,6 +40,7 @@ from jaxrb.collision.geometry import geometry
 from jaxrb.collision.pairs import mix_friction
 from jaxrb.contact.penalty import damping_ratio_from_restitution
 from jaxrb.dynamics import inverse_inertia, net_wrench
+from jaxrb.math import safe_div
 from jaxrb.types import Model, Params, State
 
 #: Pair kinds this path handles: each is a set of body-frame points swept by a radius.
@@ -387,9 +389,7 @@ class PlanePenalty:
                 held = vec.where(pressing, vec.clamp_to_disc(elastic, limit))
             else:
                 length = vec.safe_length(slip)
-                nonzero = length > 0.0
-                direction = vec.along(jnp.where(nonzero, 1.0 / jnp.where(nonzero, length, 1.0), 0.0), slip)
-                stop_force = contact_mass(direction) / h
+                stop_force = contact_mass(vec.along(safe_div(1.0, length), slip)) / h
                 coulomb = limit / jnp.sqrt(length ** 2 + params.friction_velocity ** 2)
                 friction = held = vec.along(-jnp.minimum(coulomb, stop_force), slip)
             total = vec.materialize(vec.add(vec.along(normal_force, normal), friction), params)

@@ -197,8 +197,9 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
 
     For a 3D penalty-contact scene whose only contacts are with planes (and
     the semi-implicit integrator), the scan runs ``step``'s component form
-    from :mod:`jaxrb.plane_penalty`, about 2.5× faster on CPU; its states
-    equal ``step``'s to float rounding, not bit for bit.
+    from :mod:`jaxrb.plane_penalty`, 2.4× faster for 1 024 worlds on CPU
+    (docs/performance.md, section 7); its states equal ``step``'s to float
+    rounding, not bit for bit.
     """
     if num_steps < 1 or every < 1 or num_steps % every:
         raise ValueError(f"rollout: num_steps ({num_steps}) must be a positive multiple of "

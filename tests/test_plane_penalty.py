@@ -119,6 +119,15 @@ def test_saved_state_carries_over_into_the_generic_step():
     np.testing.assert_allclose(np.asarray(after_fast.pos), np.asarray(generic.pos[-1]), atol=TOLERANCE, rtol=0)
 
 
+def test_checkpointed_component_rollout_equals_the_plain_one():
+    model, params, state = two_planes_scene().build(dt=0.002, contact="penalty", dtype=jnp.float64)
+    step = rb.make_step(model)
+    plain, segmented = (jax.jit(lambda s, p, c=c: rb.rollout(step, s, p, 60, every=2, checkpoint=c))(state, params)
+                        for c in (False, True))
+    for field in FIELDS:
+        np.testing.assert_array_equal(np.asarray(getattr(plain, field)), np.asarray(getattr(segmented, field)))
+
+
 def test_gradients_of_the_component_rollout_equal_the_steps():
     scene = rb.Scene(dim=3)
     scene.add_plane(friction=0.6)
