@@ -37,8 +37,9 @@ import numpy as np
 
 from jaxrb import components as vec, quaternion as quat_ops
 from jaxrb.collision.geometry import geometry
+from jaxrb.collision.plane import BOX_CORNERS
 from jaxrb.collision.pairs import mix_friction
-from jaxrb.contact.penalty import damping_ratio_from_restitution
+from jaxrb.contact.penalty import damping_ratio_from_restitution, spring_activation
 from jaxrb.dynamics import inverse_inertia, net_wrench
 from jaxrb.math import safe_div
 from jaxrb.types import Model, Params, State
@@ -114,8 +115,7 @@ class _PlaneGroup:
 def _shape_points(kind, arrays):
     """Shape-frame points (K, 3) and sweep radius of one shape: what its plane kernel tests."""
     if kind == "box":
-        signs = np.array([(x, y, z) for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
-        return signs * arrays[0], 0.0
+        return np.asarray(BOX_CORNERS) * arrays[0], 0.0
     if kind == "sphere":
         return np.zeros((1, 3)), float(arrays[0])
     if kind == "capsule":
@@ -367,14 +367,7 @@ class PlanePenalty:
                 angular = vec.dot(vec.matvec(data["inv_inertia"], arm_cross), arm_cross)
                 return 1.0 / (data["inv_mass"] + angular) / sharing
 
-            penetration = -row["dist"]
-            if model.penalty_smooth:
-                width = params.penalty_width
-                activation = width * jax.nn.softplus(penetration / width)
-                gate = jax.nn.sigmoid(penetration / width)
-            else:
-                activation = jnp.maximum(penetration, 0.0)
-                gate = (penetration > 0.0).astype(dtype)
+            activation, gate = spring_activation(model, params, -row["dist"])
             damping = jnp.minimum(data["damping"], contact_mass(normal) / h)
             normal_force = jnp.where(active, jnp.maximum(stiffness * activation - damping * row["vn"] * gate, 0.0),
                                      0.0)

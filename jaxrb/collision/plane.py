@@ -46,13 +46,14 @@ def capsule_plane(geom_a, geom_b, pose_a, pose_b):
     return _against_plane(ends, radius, geom_b)
 
 
-_BOX_CORNERS = tuple(itertools.product((-1.0, 1.0), repeat=3))
+#: The signs of a box's 8 corners, in the order of its contact rows.
+BOX_CORNERS = tuple(itertools.product((-1.0, 1.0), repeat=3))
 
 
 def box_plane(geom_a, geom_b, pose_a, pose_b):
     """Box against a plane: its 8 corners, 8 contacts (those below the margin matter)."""
     (half_extents,), (origin, rotation) = geom_a, pose_a
-    signs = jnp.asarray(_BOX_CORNERS, dtype=half_extents.dtype)  # scene dtype, never promoted
+    signs = jnp.asarray(BOX_CORNERS, dtype=half_extents.dtype)  # scene dtype, never promoted
     return _against_plane(_to_world(signs * half_extents, origin, rotation), 0.0, geom_b)
 
 

@@ -65,6 +65,23 @@ def damping_ratio_from_restitution(restitution):
     return -log_e / jnp.sqrt(jnp.pi ** 2 + log_e ** 2)
 
 
+def spring_activation(model: Model, params: Params, penetration):
+    """The spring's a(p) and the damper's gate g(p) of each contact (see the module docs).
+
+    Args:
+        model: Model (``penalty_smooth`` picks the softplus activation).
+        params: Params (``penalty_width``).
+        penetration: (...) penetration depth p = −dist (m).
+
+    Returns:
+        ``(activation, gate)``, each shaped like ``penetration``.
+    """
+    if model.penalty_smooth:
+        width = params.penalty_width
+        return width * jax.nn.softplus(penetration / width), jax.nn.sigmoid(penetration / width)
+    return jnp.maximum(penetration, 0.0), (penetration > 0.0).astype(penetration.dtype)
+
+
 def penalty_wrench(model: Model, params: Params, state: State, contacts, h, predicted: State,
                    held_friction):
     """Contact force and torque on every body, and each contact's friction spring force.
@@ -97,14 +114,7 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
     rel_vel = contact_velocity(state)
     normal = contacts.normal
     vn = jnp.sum(rel_vel * normal, axis=-1)
-    penetration = -contacts.dist
-    if model.penalty_smooth:
-        width = params.penalty_width
-        activation = width * jax.nn.softplus(penetration / width)
-        gate = jax.nn.sigmoid(penetration / width)
-    else:
-        activation = jnp.maximum(penetration, 0.0)
-        gate = (penetration > 0.0).astype(penetration.dtype)
+    activation, gate = spring_activation(model, params, -contacts.dist)
     inv_mass = 1.0 / params.mass
     inv_inertia = world_inverse_inertia(model, params, state, padded=False)
     active = contacts.active.astype(contacts.dist.dtype)
