@@ -315,8 +315,8 @@ class PlanePenalty:
     def _velocity_phase(self, params, prepared, carry, force, torque, h):
         """semi_implicit_velocity: v += h F/m, ω += h R I⁻¹ Rᵀ τ, damped."""
         vel = vec.add(carry.vel, vec.along(h * prepared["inv_mass"], force))
-        spin = vec.matvec(carry.rotation, vec.matvec(prepared["inv_inertia"],
-                                               vec.matvec_transposed(carry.rotation, torque)))
+        body_torque = vec.matvec_transposed(carry.rotation, torque)
+        spin = vec.matvec(carry.rotation, vec.matvec(prepared["inv_inertia"], body_torque))
         angvel = vec.add(carry.angvel, vec.along(h, spin))
         return (self._damp(vel, params.linear_damping, h), self._damp(angvel, params.angular_damping, h))
 
@@ -357,8 +357,8 @@ class PlanePenalty:
                                        for row, group in zip(rows, self.groups)), 1.0)
         for index, (row, group, data) in enumerate(zip(rows, self.groups, prepared["groups"])):
             take = lambda values: _rows(values, group.bodies)
-            rotation = tuple(tuple(map(take, r)) for r in carry.rotation)
-            arm, normal, active, rel_vel = row["arm"], row["normal"], row["active"], row["rel_vel"]
+            rotation, arm, normal = row["rotation"], row["arm"], row["normal"]
+            active, rel_vel = row["active"], row["rel_vel"]
             sharing = take(sharing_body)
 
             def contact_mass(direction):
@@ -407,4 +407,5 @@ class PlanePenalty:
         vn = vec.dot(rel_vel, normal)
         dist = height - data["radius"]
         reach = params.contact_margin + params.dt * jnp.maximum(-vn, 0.0)
-        return dict(arm=arm, normal=normal, rel_vel=rel_vel, vn=vn, dist=dist, active=dist < reach)
+        return dict(rotation=rotation, arm=arm, normal=normal, rel_vel=rel_vel, vn=vn, dist=dist,
+                    active=dist < reach)
