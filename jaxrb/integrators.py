@@ -83,6 +83,20 @@ def body_angvel_and_momentum(params: Params, state: State):
     return angvel_body, quat_ops.rotate(state.quat, matvec3(params.inertia, angvel_body))
 
 
+def body_frame_momentum(params: Params, quat, angvel):
+    """Body-frame angular momentum M = I Rᵀ ω.
+
+    Args:
+        params: Params (body-frame ``inertia`` (n, 3, 3)).
+        quat: (n, 4) orientations.
+        angvel: (n, 3) world-frame ω.
+
+    Returns:
+        (n, 3) M.
+    """
+    return matvec3(params.inertia, quat_ops.rotate_inverse(quat, angvel))
+
+
 def _linear_accel(params, force):
     return force / params.mass[:, None]
 
@@ -348,37 +362,41 @@ def rk4_body(model: Model, params: Params, state: State, force, torque, h) -> St
     """Classic RK4 substep on (x, q, v, M), M the body-frame angular momentum.
 
     The wrench is held constant in the world frame (Rᵀτ follows q within the
-    step). M is summed in two parts, M = hi + ``state.momentum_residual``
-    (compensated summation): in float32 the rounding of adding each step's
-    small update to M, and of storing M as world ω, otherwise piles up into
-    flip-time errors of 0.1–0.4 s over 20 s of tumbling (measured). In 2D this
-    is :func:`rk4`.
+    step). M is carried in two parts, ``state.body_momentum`` (high) and
+    ``state.momentum_residual`` (low), and summed with Fast2Sum (compensated
+    summation): in float32 the rounding of adding each step's small update to
+    M, and of storing M as world ω, otherwise piles up into flip-time errors of
+    0.1–0.4 s over 20 s of tumbling (measured). The step reads M from the
+    state rather than back from ω: a read-back I Rᵀ ω rounds differently
+    wherever XLA contracts its products into fused multiply-adds differently,
+    and an ulp per step lost that way cost 0.03–0.2 s of flip time
+    (docs/performance.md, section 8). The stored M is used only while ω still
+    agrees with it to :data:`MOMENTUM_AGREEMENT` ulps, so a user who replaces
+    ``angvel`` gets the M of the new ω; derivatives always flow through the
+    read-back, which equals M in exact arithmetic. In 2D this is :func:`rk4`.
 
     Args:
         model: the scene's Model (dimension, damping).
         params: Params (mass, inertia, damping rates).
-        state: State at the start of the substep; ``state.momentum_residual``
-            (n, 3) carries the low part of M between substeps.
+        state: State at the start of the substep; ``state.body_momentum`` and
+            ``state.momentum_residual`` (n, 3) carry M between substeps.
         force: (n, dim) world-frame force on each centre of mass, held constant.
         torque: (n, 3) world-frame torque in 3D, (n,) in 2D, held constant.
         h: () substep length (s).
 
     Returns:
-        State after the substep with its new ``momentum_residual`` (``time`` is
-        left to the caller).
+        State after the substep with its new ``body_momentum`` and
+        ``momentum_residual`` (``time`` is left to the caller).
     """
     if model.dim == 2:
         return rk4(model, params, state, force, torque, h)
     accel = _linear_accel(params, force)
     inv_inertia = inverse_inertia(params, 3)
 
-    def body_momentum(quat, angvel):
-        return matvec3(params.inertia, quat_ops.rotate_inverse(quat, angvel))
-
     def body_angvel(momentum):
         return matvec3(inv_inertia, momentum)
 
-    momentum0 = body_momentum(state.quat, state.angvel)
+    momentum0, residual = carried_momentum(state, body_frame_momentum(params, state.quat, state.angvel))
 
     def derivative(y):
         pos, quat, vel, momentum = y
@@ -396,14 +414,38 @@ def rk4_body(model: Model, params: Params, state: State, force, torque, h) -> St
     pos, quat, vel = state.pos + pos, quat_ops.normalize(state.quat + quat), state.vel + vel
     # Fast2Sum (exact as |update| ≤ |momentum0|, a step's change being small):
     # momentum + low is momentum0 + residual + change to twice the precision.
-    update = momentum_change + state.momentum_residual
+    update = momentum_change + residual
     momentum = momentum0 + update
     low = update - (momentum - momentum0)
     angvel = quat_ops.rotate(quat, body_angvel(momentum))
-    # What the next step will read back from angvel is not exactly momentum;
-    # the difference joins the residual.
-    return state.replace(pos=pos, quat=quat, vel=vel, angvel=angvel,
-                         momentum_residual=low + (momentum - body_momentum(quat, angvel)))
+    return state.replace(pos=pos, quat=quat, vel=vel, angvel=angvel, body_momentum=momentum,
+                         momentum_residual=low)
+
+
+#: ulps of |M| by which ω's read-back may differ from the carried body-frame
+#: momentum and still be taken for the same M (a round trip through R and I⁻¹
+#: rounds by a few ulps times I's condition number).
+MOMENTUM_AGREEMENT = 256
+
+
+def carried_momentum(state: State, readback):
+    """Body-frame momentum (high, low) to start an ``rk4_body`` substep from.
+
+    Args:
+        state: 3D State with ``body_momentum`` and ``momentum_residual`` (n, 3).
+        readback: (n, 3) I Rᵀ ω of the state's ω.
+
+    Returns:
+        ((n, 3) high part, (n, 3) low part): the carried pair where ω agrees
+        with it (see :data:`MOMENTUM_AGREEMENT`), else ``readback`` and 0.
+        The high part has the carried value but the read-back's derivatives
+        (the two are equal in exact arithmetic).
+    """
+    difference = state.body_momentum - readback
+    tolerance = MOMENTUM_AGREEMENT * jnp.finfo(readback.dtype).eps * jnp.max(jnp.abs(readback), axis=-1)
+    agrees = (jnp.max(jnp.abs(difference), axis=-1) <= tolerance)[:, None]
+    high = readback + jax.lax.stop_gradient(jnp.where(agrees, difference, 0.0))
+    return high, jnp.where(agrees, state.momentum_residual, 0.0)
 
 
 def _rk4_combine(derivative, y, h, increments=False):

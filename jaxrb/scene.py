@@ -27,6 +27,7 @@ import numpy as np
 
 from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
 from jaxrb.collision.pairs import build_pair_groups
+from jaxrb.integrators import body_frame_momentum
 from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
                          QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option)
 
@@ -490,7 +491,8 @@ class Scene:
             time=jnp.zeros((), dtype=dtype),
             contact_impulse=jnp.zeros((slots, 1 + dim), dtype=dtype) if slots else None,
             contact_key=jnp.full((slots,), -1, dtype=jnp.int32) if slots else None,
-            overflow=jnp.zeros((), dtype=bool) if slots else None,
-            momentum_residual=(jnp.zeros((num, 3), dtype=dtype)
-                               if dim == 3 and integrator == "rk4_body" else None))
+            overflow=jnp.zeros((), dtype=bool) if slots else None)
+        if dim == 3 and integrator == "rk4_body":
+            state = state.replace(body_momentum=body_frame_momentum(params, state.quat, state.angvel),
+                                  momentum_residual=jnp.zeros((num, 3), dtype=dtype))
         return model, params, state

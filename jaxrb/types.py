@@ -229,12 +229,14 @@ class State:
             warm start is used only by the same contact.
         overflow: () bool, True if a broadphase had more overlapping pairs than
             its capacity in the last step (contacts were dropped).
-        momentum_residual: (n, 3) integrator ``rk4_body`` in 3D only (else
-            ``None``): the body-frame angular momentum that ``angvel`` cannot
-            hold in the state's precision, i.e. the rounding of each step's
-            update and of the world↔body round trip, carried to the next step
-            (compensated summation). Of the order of one ulp of I ω; a user
-            who replaces ``angvel`` may leave it as it is.
+        body_momentum: (n, 3) integrator ``rk4_body`` in 3D only (else
+            ``None``): body-frame angular momentum M = I Rᵀ ω as the last step
+            computed it, which ``angvel`` holds only to rounding. The step
+            starts from it while ``angvel`` agrees with it to rounding, so a
+            user who replaces ``angvel`` may leave it as it is.
+        momentum_residual: (n, 3) with ``body_momentum``: the low part of M,
+            the rounding of each step's update carried to the next step
+            (compensated summation), of the order of one ulp of M.
     """
 
     pos: Array
@@ -246,6 +248,7 @@ class State:
     contact_impulse: Optional[Array] = None
     contact_key: Optional[Array] = None
     overflow: Optional[Array] = None
+    body_momentum: Optional[Array] = None
     momentum_residual: Optional[Array] = None
 
 
