@@ -1,8 +1,9 @@
 """jaxrb: differentiable rigid-body physics in pure JAX."""
 
+# First: importing jaxrb.compile sets XLA_FLAGS, which must happen before JAX starts.
+from jaxrb.compile import jit
 from jaxrb import quaternion
 from jaxrb.collision.pairs import ContactSet
-from jaxrb.compile import jit
 from jaxrb.collision.pairs import detect as detect_contacts
 from jaxrb.dynamics import (angular_momentum, kinetic_energy, potential_energy,
                             total_angular_momentum, world_inertia, wrench_at_points)

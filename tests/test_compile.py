@@ -38,3 +38,43 @@ def test_jit_passes_arguments_and_user_options_through():
     # The user's options reach XLA (merged over jaxrb's): an unknown one is refused there.
     with pytest.raises(Exception, match="xla_no_such_option"):
         rb.jit(lambda x: x + 1.0, compiler_options={"xla_no_such_option": "1"})(1.0)
+
+
+def _status_in_fresh_process(env_updates, prelude=""):
+    """What ``import jaxrb`` did to XLA_FLAGS in a new interpreter: (status, XLA_FLAGS)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAXRB_XLA_FLAGS")}
+    env.update(env_updates)
+    code = (f"{prelude}\nimport os, jaxrb\n"
+            "print(jaxrb.compile.XLA_FLAGS_STATUS); print(os.environ.get('XLA_FLAGS', ''))")
+    lines = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                           check=True).stdout.splitlines()
+    return lines[0], lines[1] if len(lines) > 1 else ""
+
+
+@pytest.mark.parametrize("env, prelude, status, flags", [
+    ({}, "", "set", rb.compile.CPU_XLA_FLAG),
+    ({"XLA_FLAGS": "--xla_cpu_enable_fast_math=false"}, "", "set",
+     "--xla_cpu_enable_fast_math=false " + rb.compile.CPU_XLA_FLAG),
+    ({"JAXRB_XLA_FLAGS": "0"}, "", "opted out", ""),
+    ({"XLA_FLAGS": "--xla_backend_extra_options=a=1"}, "", "left to the user's XLA_FLAGS",
+     "--xla_backend_extra_options=a=1"),
+    ({}, "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()", "too late", ""),
+])
+def test_import_sets_the_loop_threshold_only_when_it_can_and_may(env, prelude, status, flags):
+    assert _status_in_fresh_process(env, prelude) == (status, flags)
+
+
+def test_the_loop_threshold_compiles_a_rollout_as_one_function():
+    """In this process (jaxrb imported before JAX started) a one-body rollout's loop is hoisted."""
+    if rb.compile.XLA_FLAGS_STATUS != "set" or jax.default_backend() != "cpu":
+        pytest.skip(f"XLA_FLAGS not set by jaxrb here ({rb.compile.XLA_FLAGS_STATUS})")
+    scene = rb.Scene(dim=3, gravity=(0.0, 0.0, 0.0))
+    scene.add_body(None, mass=1.0, inertia=(0.3, 0.35, 0.4), angvel=(0.1, 15.0, 0.1))
+    model, params, state = scene.build(dt=1 / 240)
+    step = rb.make_step(model)
+    text = rb.jit(lambda s, p: rb.rollout(step, s, p, 1000)).lower(state, params).compile().as_text()
+    assert "xla_cpu_small_call" in text

@@ -11,6 +11,8 @@ from typing import Any, Iterable, Optional, Sequence
 
 import jax
 
+from jaxrb.compile import XLA_FLAGS_STATUS
+
 
 def markdown_table(headers: Sequence[str], rows: Iterable[Sequence[Any]],
                    align: Optional[Sequence[str]] = None) -> str:
@@ -134,6 +136,7 @@ def machine_info() -> dict:
         "load average (1, 5, 15 min) at start": load,
         "x64 enabled": str(bool(jax.config.jax_enable_x64)),
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", "(unset)"),
+        "XLA_FLAGS at import jaxrb": XLA_FLAGS_STATUS + " (see jaxrb.compile.use_xla_cpu_flags)",
     }
 
 
