@@ -248,20 +248,24 @@ def static_rows(model: Model):
     return tuple(tuple(side) for side in sides)
 
 
-def take_rows(array, pieces):
+def take_rows(array, pieces, static_row=None):
     """The rows ``pieces`` name of a per-body array, with slices and broadcasts where they allow.
 
     Args:
-        array: (n, ...) per-body values; the static row (planes) reads as zeros.
+        array: (n, ...) per-body values.
         pieces: one side of :func:`static_rows`.
+        static_row: optional (...) value the static row (planes) reads as;
+            zeros by default.
 
     Returns:
         (C, ...) the rows' values.
     """
+    if static_row is None:
+        static_row = jnp.zeros(array.shape[1:], array.dtype)
     parts = []
     for piece in pieces:
         if piece[0] == "static":
-            parts.append(jnp.zeros((piece[1],) + array.shape[1:], array.dtype))
+            parts.append(jnp.broadcast_to(static_row, (piece[1],) + array.shape[1:]))
             continue
         if piece[0] == "index":
             parts.append(array[piece[1]])
@@ -308,9 +312,10 @@ def sum_rows(values, pieces, num_rows):
 
 
 def row_taker(model: Model, body_a, body_b):
-    """``take(array, side)``: the side-A (0) or side-B (1) rows of an (n, ...) body array.
+    """``take(array, side, static_row=None)``: the side-A (0) or side-B (1) rows of an (n, ...) body array.
 
-    The static row n (planes) reads as zeros. Reads with static slices and
+    The static row n (planes) reads as ``static_row`` ((...), zeros by
+    default). Reads with static slices and
     broadcasts where the pair table fixes the rows (:func:`static_rows`),
     else pads and indexes with the traced ``body_a``, ``body_b`` (C,). Under
     vmap a gather of the batched (n + 1, 3) arrays comes out as a transposed
@@ -319,8 +324,11 @@ def row_taker(model: Model, body_a, body_b):
     """
     pieces = static_rows(model)
     if pieces is None:
-        return lambda array, side: pad(array)[body_b if side else body_a]
-    return lambda array, side: take_rows(array, pieces[side])
+        def take(array, side, static_row=None):
+            padded = pad(array) if static_row is None else jnp.concatenate([array, static_row[None]])
+            return padded[body_b if side else body_a]
+        return take
+    return lambda array, side, static_row=None: take_rows(array, pieces[side], static_row)
 
 
 def row_summer(model: Model, body_a, body_b):

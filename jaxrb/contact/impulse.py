@@ -63,7 +63,7 @@ import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
-from jaxrb.collision.pairs import round_sides
+from jaxrb.collision.pairs import round_sides, row_summer, row_taker
 from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc, contact_counts,
                                   moment, pad, relative_velocity, spin_cross, tangent_basis,
                                   world_inverse_inertia)
@@ -153,18 +153,23 @@ class RowMaps:
     coupling: Array
 
 
-def _row_maps(model, a, b, arm_a, arm_b, directions, inv_mass, inv_inertia) -> RowMaps:
-    """:class:`RowMaps` of rows with bodies a, b (C,), arms (C, dim) and unit ``directions``."""
+def _row_maps(model, take, arm_a, arm_b, directions, inv_mass, inv_inertia) -> RowMaps:
+    """:class:`RowMaps` of rows with arms (C, dim) and unit ``directions``.
+
+    ``take(array, side)`` reads the rows' bodies from the (n, ...) per-body
+    ``inv_mass`` and world ``inv_inertia`` (:func:`jaxrb.collision.pairs.row_taker`).
+    """
     turn = lambda arm: tuple(moment(model, arm, d) for d in directions)
     spin = lambda row_inertia, turns: tuple(apply_inverse_inertia(model, row_inertia, t) for t in turns)
     turn_a, turn_b = turn(arm_a), turn(arm_b)
-    spin_a, spin_b = spin(inv_inertia[a], turn_a), spin(inv_inertia[b], turn_b)
+    spin_a, spin_b = spin(take(inv_inertia, 0), turn_a), spin(take(inv_inertia, 1), turn_b)
+    inv_mass_a, inv_mass_b = take(inv_mass, 0), take(inv_mass, 1)
     if model.dim == 3:
         coupling = _dot(model, turn_a[2], spin_a[1]) + _dot(model, turn_b[2], spin_b[1])
     else:
-        coupling = jnp.zeros_like(inv_mass[a])
+        coupling = jnp.zeros_like(inv_mass_a)
     return RowMaps(turn_a=turn_a, turn_b=turn_b, spin_a=spin_a, spin_b=spin_b,
-                   inv_mass_a=inv_mass[a], inv_mass_b=inv_mass[b], coupling=coupling)
+                   inv_mass_a=inv_mass_a, inv_mass_b=inv_mass_b, coupling=coupling)
 
 
 def _dot(model, x, y):
@@ -182,24 +187,28 @@ def _effective_mass(model, maps: RowMaps, k, split_a, split_b):
     return 1.0 / (split_a * side_a + split_b * side_b)
 
 
-def _padded_rotations(model, state):
-    """Per-row rotation data with an identity row for the static body."""
+def _row_rotations(model, state, take):
+    """Each row's A-side and B-side orientation (the static body's is the identity).
+
+    Returns:
+        Two (C, 4) quaternions in 3D, two (C,) angles in 2D.
+    """
     if model.dim == 3:
-        identity = jnp.zeros((1, 4), state.quat.dtype).at[0, 0].set(1.0)
-        return jnp.concatenate([state.quat, identity])
-    return pad(state.angle)
+        identity = jnp.asarray([1.0, 0.0, 0.0, 0.0], state.quat.dtype)
+        return take(state.quat, 0, identity), take(state.quat, 1, identity)
+    return take(state.angle, 0), take(state.angle, 1)
 
 
-def _to_world(model, rotations, body, vector):
+def _to_world(model, rotation, vector):
     if model.dim == 3:
-        return quat_ops.rotate(rotations[body], vector)
-    return rotate2(rotations[body], vector)
+        return quat_ops.rotate(rotation, vector)
+    return rotate2(rotation, vector)
 
 
-def _to_body(model, rotations, body, vector):
+def _to_body(model, rotation, vector):
     if model.dim == 3:
-        return quat_ops.rotate_inverse(rotations[body], vector)
-    return rotate2(-rotations[body], vector)
+        return quat_ops.rotate_inverse(rotation, vector)
+    return rotate2(-rotation, vector)
 
 
 def _split(model, inv_mass, inv_inertia, split):
@@ -209,45 +218,47 @@ def _split(model, inv_mass, inv_inertia, split):
 
 def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     """Fix arms, directions and effective masses for the step."""
-    pos = pad(state.pos)
-    arm_a = contacts.point - pos[contacts.body_a]
-    arm_b = contacts.point - pos[contacts.body_b]
-    inv_mass = pad(1.0 / params.mass)
-    inv_inertia = world_inverse_inertia(model, params, state)
+    a, b = contacts.body_a, contacts.body_b
+    # Rows read body values with static slices where the pair table fixes them:
+    # a gather's reverse-mode transpose is a scatter, and a loop holding a
+    # scatter is not compiled as one function (docs/performance.md, section 8).
+    take = row_taker(model, a, b)
+    pos_a, pos_b = take(state.pos, 0), take(state.pos, 1)
+    arm_a, arm_b = contacts.point - pos_a, contacts.point - pos_b
+    inv_mass = 1.0 / params.mass
+    inv_inertia = world_inverse_inertia(model, params, state, padded=False)
     split = (jnp.maximum(contact_counts(model, contacts), 1.0) if model.solver == "jacobi"
-             else jnp.ones_like(inv_mass))
+             else jnp.ones(inv_mass.shape[0] + 1, inv_mass.dtype))
     normal = contacts.normal
     tangents = tangent_basis(normal) if model.dim == 3 else (jnp.stack([-normal[:, 1], normal[:, 0]], -1),)
-    a, b = contacts.body_a, contacts.body_b
-    maps = _row_maps(model, a, b, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia)
+    maps = _row_maps(model, take, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia)
     masses = [_effective_mass(model, maps, k, split[a], split[b]) for k in range(1 + len(tangents))]
-    rotations = _padded_rotations(model, state)
+    rotation_a, rotation_b = _row_rotations(model, state, take)
     normal_mass = masses[0]
     round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
-    centre = -pad(params.com_offset)  # shape centre from the centre of mass, body frame
-    anchor_a = jnp.where(round_a, centre[a], _to_body(model, rotations, a, arm_a))
-    anchor_b = jnp.where(round_b, centre[b], _to_body(model, rotations, b, arm_b))
+    centre = -params.com_offset  # shape centre from the centre of mass, body frame
+    anchor_a = jnp.where(round_a, take(centre, 0), _to_body(model, rotation_a, arm_a))
+    anchor_b = jnp.where(round_b, take(centre, 1), _to_body(model, rotation_b, arm_b))
     return Prepared(
         body_a=contacts.body_a, body_b=contacts.body_b, normal=normal, tangents=tangents,
         arm_a=arm_a, arm_b=arm_b,
         anchor_a=anchor_a, anchor_b=anchor_b,
-        start_a=pos[a] + _to_world(model, rotations, a, anchor_a),
-        start_b=pos[b] + _to_world(model, rotations, b, anchor_b),
+        start_a=pos_a + _to_world(model, rotation_a, anchor_a),
+        start_b=pos_b + _to_world(model, rotation_b, anchor_b),
         separation=contacts.dist, normal_mass=normal_mass,
         tangent_mass=tuple(masses[1:]),
         friction=contacts.friction, restitution=contacts.restitution,
         approach=contacts.normal_velocity, active=contacts.active,
         smoothing=normal_mass * params.impulse_smoothing,
-        inv_mass=inv_mass, inv_inertia=inv_inertia, split=split, maps=maps)
+        inv_mass=pad(inv_mass), inv_inertia=pad(inv_inertia), split=split, maps=maps)
 
 
 def current_separation(model: Model, prep: Prepared, state: State):
     """Separation now, from the bodies' motion since the step start (no new collision)."""
-    pos = pad(state.pos)
-    rotations = _padded_rotations(model, state)
-    world_arm = lambda body, anchor: _to_world(model, rotations, body, anchor)
-    moved_a = pos[prep.body_a] + world_arm(prep.body_a, prep.anchor_a) - prep.start_a
-    moved_b = pos[prep.body_b] + world_arm(prep.body_b, prep.anchor_b) - prep.start_b
+    take = row_taker(model, prep.body_a, prep.body_b)
+    rotation_a, rotation_b = _row_rotations(model, state, take)
+    moved_a = take(state.pos, 0) + _to_world(model, rotation_a, prep.anchor_a) - prep.start_a
+    moved_b = take(state.pos, 1) + _to_world(model, rotation_b, prep.anchor_b) - prep.start_b
     return prep.separation + jnp.sum(prep.normal * (moved_a - moved_b), axis=-1)
 
 
@@ -258,17 +269,22 @@ def _relative_velocity(model, prep, vel, angvel, rows=slice(None)):
 
 def normal_velocity(model: Model, prep: Prepared, state: State):
     """v_rel = n·(v_A − v_B) at every contact for the velocities of ``state``. Returns (C,)."""
-    rel_vel = _relative_velocity(model, prep, pad(state.vel), pad(state.angvel))
+    rel_vel = relative_velocity(model, state.vel, state.angvel, prep.body_a, prep.body_b, prep.arm_a,
+                                prep.arm_b, row_taker(model, prep.body_a, prep.body_b))
     return jnp.sum(rel_vel * prep.normal, axis=-1)
 
 
 def apply_impulses(model, prep, vel, angvel, impulse, rows=slice(None)):
     """Apply world impulses (rows, dim) at the contacts: +P on A, −P on B."""
     a, b = prep.body_a[rows], prep.body_b[rows]
-    num = vel.shape[0]
-    linear = (jax.ops.segment_sum(impulse, a, num) - jax.ops.segment_sum(impulse, b, num))
-    angular = (jax.ops.segment_sum(moment(model, prep.arm_a[rows], impulse), a, num)
-               - jax.ops.segment_sum(moment(model, prep.arm_b[rows], impulse), b, num))
+    if isinstance(rows, slice) and rows == slice(None):  # every row: static slices where the table fixes them
+        add = row_summer(model, a, b)
+        summed = lambda values, side: pad(add(values, side))
+    else:
+        summed = lambda values, side: jax.ops.segment_sum(values, b if side else a, vel.shape[0])
+    linear = summed(impulse, 0) - summed(impulse, 1)
+    angular = (summed(moment(model, prep.arm_a[rows], impulse), 0)
+               - summed(moment(model, prep.arm_b[rows], impulse), 1))
     inv_mass = prep.inv_mass[:, None]
     return vel + inv_mass * linear, angvel + apply_inverse_inertia(model, prep.inv_inertia, angular)
 
