@@ -24,8 +24,8 @@ threshold for compiling a ``while`` loop as one function
 (``xla_cpu_small_while_loop_byte_threshold``, 1 kB by default). Above the
 threshold, every fused kernel of a loop body is dispatched on its own, and a
 one-world step is dozens of kernels of a few numbers each, so dispatch is
-its cost: raised, a 1 000-step rollout of one tumbling body runs in 0.09–0.12
-ms instead of 0.25–0.85 ms and its gradient in 0.9 ms instead of 12 ms
+its cost: raised, a 1 000-step rollout of one tumbling body runs in 0.09–0.21
+ms instead of 0.25–0.85 ms and its gradient in 0.9–1.1 ms instead of 12 ms
 (docs/performance.md, section 8). It changes only how loops are compiled,
 not what they compute, apart from rounding (fused multiply-adds may be
 contracted elsewhere). Set ``JAXRB_XLA_FLAGS=0`` to leave ``XLA_FLAGS`` alone;
