@@ -16,7 +16,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxrb.math import safe_div, safe_sqrt
+from jaxrb.math import safe_div, safe_sqrt, unstack
 
 
 def is_zero(part) -> bool:
@@ -105,9 +105,9 @@ def materialize(vector, params):
 
 def split(array):
     """(..., k) array -> k-tuple of (...) arrays."""
-    return tuple(array[..., i] for i in range(array.shape[-1]))
+    return unstack(array)
 
 
 def matrix_parts(matrices):
     """(n, 3, 3) -> rows of (n,) entries."""
-    return tuple(tuple(matrices[..., i, j] for j in range(3)) for i in range(3))
+    return tuple(unstack(row) for row in unstack(matrices, -2))

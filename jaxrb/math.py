@@ -11,7 +11,25 @@ double-``where`` trick so both the value and its gradient stay finite there.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+
+
+def unstack(x, axis=-1):
+    """The slices of ``x`` along ``axis`` (that axis dropped), as a tuple.
+
+    ``lax.split`` rather than indexing: reverse mode transposes one split
+    into one concatenate, where ``x[..., 0]``, ``x[..., 1]``, ... each
+    transpose into a pad of the whole array, summed.
+
+    Args:
+        x: (..., k, ...) array.
+        axis: the axis to take apart.
+
+    Returns:
+        k arrays of x's shape without ``axis``.
+    """
+    return tuple(jnp.squeeze(part, axis) for part in jax.lax.split(x, (1,) * x.shape[axis], axis=axis))
 
 
 def dot(a, b):
@@ -23,7 +41,7 @@ def dot(a, b):
     Returns:
         (...) the dot products.
     """
-    return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
+    return sum(x * y for x, y in zip(unstack(a), unstack(b)))
 
 
 def matmul(a, b):
@@ -41,12 +59,11 @@ def matmul(a, b):
     Returns:
         The product: (..., m, n), (..., m), (..., n) or ().
     """
-    terms = range(a.shape[-1])
     if b.ndim == 1:
-        return sum(a[..., i] * b[i] for i in terms)
+        return sum(x * y for x, y in zip(unstack(a), unstack(b)))
     if a.ndim == 1:
-        return sum(a[i] * b[..., i, :] for i in terms)
-    return sum(a[..., :, i, None] * b[..., None, i, :] for i in terms)
+        return sum(x * row for x, row in zip(unstack(a), unstack(b, -2)))
+    return sum(column[..., :, None] * row[..., None, :] for column, row in zip(unstack(a), unstack(b, -2)))
 
 
 def cross(a, b):
@@ -58,8 +75,8 @@ def cross(a, b):
     Returns:
         (..., 3) the cross products.
     """
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    ax, ay, az = unstack(a)
+    bx, by, bz = unstack(b)
     return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
 
 
@@ -159,9 +176,9 @@ def matvec3(m, v):
     Returns:
         (..., 3) the products.
     """
-    return jnp.stack(
-        [m[..., i, 0] * v[..., 0] + m[..., i, 1] * v[..., 1] + m[..., i, 2] * v[..., 2]
-         for i in range(3)], axis=-1)
+    vx, vy, vz = unstack(v)
+    return jnp.stack([row[0] * vx + row[1] * vy + row[2] * vz
+                      for row in (unstack(r) for r in unstack(m, -2))], axis=-1)
 
 
 def inverse3(m):
@@ -176,9 +193,7 @@ def inverse3(m):
     Returns:
         (..., 3, 3) the inverses.
     """
-    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    (a, b, c), (d, e, f), (g, h, i) = (unstack(row) for row in unstack(m, -2))
     co00, co01, co02 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * co00 + b * co01 + c * co02
     inv_det = 1.0 / det

@@ -13,15 +13,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxrb.math import safe_normalize
-
-
-def _parts(q):
-    return q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-
-
-def _vector_parts(v):
-    return v[..., 0], v[..., 1], v[..., 2]
+from jaxrb.math import safe_normalize, unstack
 
 
 def multiply_parts(a, b):
@@ -50,7 +42,7 @@ def multiply(a, b):
     Returns:
         (..., 4) the products.
     """
-    return jnp.stack(multiply_parts(_parts(a), _parts(b)), axis=-1)
+    return jnp.stack(multiply_parts(unstack(a), unstack(b)), axis=-1)
 
 
 def conjugate(q):
@@ -93,7 +85,7 @@ def rotate(q, v):
     Returns:
         (..., 3) the world-frame vectors.
     """
-    return jnp.stack(rotate_parts(_parts(q), _vector_parts(v)), axis=-1)
+    return jnp.stack(rotate_parts(unstack(q), unstack(v)), axis=-1)
 
 
 def rotate_parts(q, v):
@@ -140,7 +132,7 @@ def to_rotation_matrix(q):
     Returns:
         (..., 3, 3) rotation matrices R with R v = q v q*.
     """
-    rows = rotation_matrix_parts(_parts(q))
+    rows = rotation_matrix_parts(unstack(q))
     return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
 
 
