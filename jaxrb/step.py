@@ -189,6 +189,8 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         checkpoint: ``False``; ``True`` to rematerialise in segments of about
             √(num_steps/every) saved states, so reverse-mode memory grows as
             about √T instead of T; or an int segment length in saved states.
+            Either way each step is rematerialised on its own: reverse mode
+            keeps one State per step, not the step's intermediates.
         applied: optional Wrench with a leading time axis (num_steps, ...)
             applied one slice per step.
 
@@ -219,6 +221,12 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         carried, prepared = fast.to_carry(state, params), fast.prepare(params)
         advance_one = lambda c, a: fast.step(c, params, a, prepared)
         saved = lambda c: fast.from_carry(c, state, params)
+    # Reverse mode recomputes each step from its carried state instead of
+    # storing the step's intermediates (scalars per body component, a hundred
+    # or more a step, each its own buffer written in the forward loop and read
+    # in the backward one): that traffic cost more than the step itself. The
+    # forward-only program is unchanged (docs/performance.md, section 9).
+    advance_one = jax.checkpoint(advance_one, prevent_cse=False)
 
     def advance(current, applied_chunk):
         def one(inner, applied_now):

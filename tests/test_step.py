@@ -166,6 +166,21 @@ def test_rollout_every_and_checkpoint_agree(scene3):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)
 
 
+def test_checkpoint_lowers_memory_of_thinned_rollouts(scene3):
+    # Rollout rematerialises every step, so its reverse mode keeps at most a
+    # State a step; with every = 10 the saved trajectory is small, and
+    # segments of about √(T / every) saved states keep a few times less
+    # (measured: 88 against 19 bytes a step; with every = 1, 217 against 148).
+    model, params, state, _ = scene3
+    step = rb.make_step(model)
+
+    def temp_bytes(checkpoint):
+        loss = lambda p: jnp.sum(rb.rollout(step, state, p, 1000, every=10, checkpoint=checkpoint).pos ** 2)
+        return jax.jit(jax.grad(loss)).lower(params).compile().memory_analysis().temp_size_in_bytes
+
+    assert temp_bytes(True) < temp_bytes(False) / 3
+
+
 def test_rollout_applied_wrench_sequence():
     scene = rb.Scene(dim=2, gravity=(0.0, 0.0))
     scene.add_body(rb.Circle(0.1), mass=2.0)
