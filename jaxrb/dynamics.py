@@ -44,16 +44,32 @@ def world_inertia(quat, inertia):
 
 
 def inverse_inertia(params: Params, dim: int):
-    """Body-frame inverse inertia.
+    """Body-frame inverse inertia: ``params.inv_inertia`` where filled, else computed.
 
     Args:
-        params: Params (uses ``inertia``: (n, 3, 3) in 3D, (n,) in 2D).
+        params: Params (uses ``inv_inertia`` or ``inertia``: (n, 3, 3) in 3D,
+            (n,) in 2D).
         dim: 2 or 3.
 
     Returns:
         (n, 3, 3) inverse tensors in 3D (closed-form), (n,) inverse moments in 2D.
     """
+    if params.inv_inertia is not None:
+        return params.inv_inertia
     return inverse3(params.inertia) if dim == 3 else 1.0 / params.inertia
+
+
+def with_inverse_inertia(params: Params, dim: int) -> Params:
+    """``params`` with ``inv_inertia`` (re)computed from ``inertia``.
+
+    Args:
+        params: Params (``inertia``: (n, 3, 3) in 3D, (n,) in 2D).
+        dim: 2 or 3.
+
+    Returns:
+        Params whose ``inv_inertia`` is ``inertia``'s inverse, whatever it held.
+    """
+    return params.replace(inv_inertia=inverse_inertia(params.replace(inv_inertia=None), dim))
 
 
 def net_wrench(model: Model, params: Params, applied: Wrench | None):

@@ -12,7 +12,7 @@ from jaxrb.collision.pairs import detect
 from jaxrb.contact import impulse, toi
 from jaxrb.contact.common import carried_impulses, pad
 from jaxrb.contact.penalty import penalty_wrench
-from jaxrb.dynamics import net_wrench
+from jaxrb.dynamics import net_wrench, with_inverse_inertia
 from jaxrb.integrators import INTEGRATORS, PHASES
 from jaxrb.plane_penalty import PlanePenalty, supports as plane_penalty_supports
 from jaxrb.types import Model, Params, State, Wrench
@@ -207,6 +207,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         raise ValueError(f"rollout: num_steps ({num_steps}) must be a positive multiple of "
                          f"every ({every})")
     num_saved = num_steps // every
+    model = getattr(step, "model", None)
+    if model is not None:
+        # Inverted once here, not in every step: reverse mode then sums the
+        # inverse's cotangent over the steps and transposes the inverse once.
+        params = with_inverse_inertia(params, model.dim)
     if applied is not None:
         applied = jax.tree_util.tree_map(
             lambda a: a.reshape((num_saved, every) + a.shape[1:]), applied)

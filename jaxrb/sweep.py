@@ -33,7 +33,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxrb.compile import jit
 from jaxrb.step import rollout
-from jaxrb.types import Params, State
+from jaxrb.types import DERIVED_PARAMS, Params, State
 
 #: Name of the one mesh axis the batch is split over.
 BATCH_AXIS = "batch"
@@ -46,10 +46,13 @@ def _batch_fields(kind: str, world, fields: dict):
     if not fields:
         raise ValueError(f"batch_{kind}: give at least one field to vary, e.g. "
                          f"batch_{kind}({kind}, {'restitution' if kind == 'params' else 'pos'}=values)")
-    valid = [name for name in type(world).__dataclass_fields__]
+    valid = [name for name in type(world).__dataclass_fields__ if name not in DERIVED_PARAMS]
     sizes = {}
     values = {}
     for name, value in fields.items():
+        if name in DERIVED_PARAMS:
+            raise ValueError(f"batch_{kind}: field {name!r} is derived from the others (rollout fills "
+                             f"it); sweep 'inertia' instead")
         if name not in valid:
             raise ValueError(f"batch_{kind}: unknown field {name!r}; valid fields are: "
                              f"{', '.join(valid)}")

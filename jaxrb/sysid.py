@@ -58,10 +58,10 @@ from jaxrb._struct import pytree_dataclass
 from jaxrb.compile import jit
 from jaxrb.math import safe_norm
 from jaxrb.step import rollout
-from jaxrb.types import Params, State, Wrench
+from jaxrb.types import DERIVED_PARAMS, Params, State, Wrench
 
 Array = jax.Array
-PARAM_FIELDS = tuple(field.name for field in dataclasses.fields(Params))
+PARAM_FIELDS = tuple(field.name for field in dataclasses.fields(Params) if field.name not in DERIVED_PARAMS)
 
 
 # --- observations and losses -------------------------------------------------------
@@ -388,6 +388,9 @@ def _resolve_transform(name: str, params: Params, transforms) -> tuple:
 
 
 def _check_field_name(name) -> str:
+    if name in DERIVED_PARAMS:
+        raise ValueError(f"sysid: Params field {name!r} is derived from the others (rollout fills it); "
+                         f"fit 'inertia' instead")
     if name not in PARAM_FIELDS:
         raise ValueError(f"sysid: unknown Params field {name!r}; valid fields: {', '.join(PARAM_FIELDS)}")
     return name

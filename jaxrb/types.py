@@ -183,6 +183,13 @@ class Params:
             (m_n: the contact's normal effective mass). 0 (the default) is the
             exact clamp; larger values trade bias (contacts push slightly
             before they touch) for gradients that see contacts coming.
+        inv_inertia: derived, not a parameter: None, or ``inertia``'s inverse
+            ((n, 3, 3) in 3D, (n,) in 2D) for the stages to use instead of
+            inverting ``inertia`` each step. :func:`jaxrb.rollout` fills it
+            once per rollout from ``inertia`` (replacing any value given), so
+            reverse mode transposes the inverse once, not once per step; a
+            step called on its own inverts ``inertia`` itself. Neither fitted
+            nor swept (:data:`DERIVED_PARAMS`).
     """
 
     mass: Array
@@ -208,6 +215,11 @@ class Params:
     penalty_width: Array
     friction_velocity: Array
     impulse_smoothing: Array
+    inv_inertia: Optional[Array] = None
+
+
+#: Params fields computed from the others, never fitted or swept.
+DERIVED_PARAMS = ("inv_inertia",)
 
 
 @pytree_dataclass

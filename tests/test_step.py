@@ -166,6 +166,33 @@ def test_rollout_every_and_checkpoint_agree(scene3):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)
 
 
+@pytest.mark.parametrize("dim", [3, 2])
+def test_rollout_inverts_inertia_once_with_the_same_gradient(dim):
+    # rollout fills Params.inv_inertia outside its scan; a plain scan of the
+    # step inverts inertia in every step. Values and gradients must agree,
+    # and a stale inv_inertia handed to rollout must be replaced, not used.
+    model, params, state = mixed_scene(dim)
+    params = params.replace(torque=jnp.full_like(params.torque, 0.3))  # so 2D angvel depends on inertia
+    step = rb.make_step(model)
+
+    def by_scan(p):
+        return jax.lax.scan(lambda s, _: (step(s, p),) * 2, state, length=40)[1]
+
+    def loss(trajectory):
+        return jnp.sum(trajectory.pos ** 2) + jnp.sum(trajectory.angvel ** 2)
+
+    stale = params.replace(inv_inertia=2.0 * rb.dynamics.inverse_inertia(params, dim))
+    traj = rb.rollout(step, state, stale, 40)
+    reference = by_scan(params)
+    np.testing.assert_allclose(traj.angvel, reference.angvel, rtol=1e-12, atol=1e-14)
+    grad = jax.grad(lambda p: loss(rb.rollout(step, state, p, 40)))(params)
+    grad_reference = jax.grad(lambda p: loss(by_scan(p)))(params)
+    assert grad.inv_inertia is None
+    assert float(jnp.max(jnp.abs(grad_reference.inertia))) > 1e-3  # inertia really matters here
+    np.testing.assert_allclose(grad.inertia, grad_reference.inertia, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(grad.mass, grad_reference.mass, rtol=1e-10, atol=1e-12)
+
+
 def test_checkpoint_lowers_memory_of_thinned_rollouts(scene3):
     # Rollout rematerialises every step, so its reverse mode keeps at most a
     # State a step; with every = 10 the saved trajectory is small, and

@@ -140,6 +140,7 @@ def test_batch_params_broadcasts_into_per_body_fields():
     (dict(dt=[0.01, np.nan]), "dt"),
     (dict(friction=["low", "high"]), "friction.*numeric"),
     (dict(), "at least one field"),
+    (dict(inv_inertia=np.ones((2, 1, 3, 3))), "'inv_inertia' is derived"),
 ])
 def test_batch_params_rejects_bad_input(world, fields, message):
     params, _, _ = world

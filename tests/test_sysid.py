@@ -165,6 +165,8 @@ def test_bad_fields_raise_value_error_naming_the_field():
     with pytest.raises(ValueError, match="'inertia'.*triangle"):
         sysid.to_unconstrained(params.replace(inertia=jnp.stack([jnp.diag(jnp.array([1.0, 1.0, 3.0]))] * 2)),
                                "inertia")
+    with pytest.raises(ValueError, match="'inv_inertia' is derived"):
+        sysid.to_unconstrained(params, "inv_inertia")
     with pytest.raises(ValueError, match="unknown transform 'exp' for field 'mass'"):
         sysid.to_unconstrained(params, "mass", transforms={"mass": "exp"})
 
