@@ -187,10 +187,12 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         every: keep every ``every``-th state (the states after steps
             every, 2·every, ..., num_steps).
         checkpoint: ``False``; ``True`` to rematerialise in segments of about
-            √(num_steps/every) saved states, so reverse-mode memory grows as
-            about √T instead of T; or an int segment length in saved states.
-            Either way each step is rematerialised on its own: reverse mode
-            keeps one State per step, not the step's intermediates.
+            √(num_steps/every) saved states, so reverse mode keeps about √T
+            step inputs instead of T; or an int segment length in saved
+            states. Either way each step is rematerialised on its own, so
+            reverse mode keeps one State a step, not the step's
+            intermediates; and the trajectory returned is num_steps // every
+            States either way, so segments pay when ``every`` > 1.
         applied: optional Wrench with a leading time axis (num_steps, ...)
             applied one slice per step.
 

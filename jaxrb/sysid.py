@@ -644,7 +644,8 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
         applied: optional :class:`Wrench` sequence, arrays (S, n, ...) with S >=
             the largest observed step (B, S, n, ...) when batched.
         every: rollout save interval; default the gcd of the observed steps.
-        checkpoint: passed to :func:`jaxrb.rollout` (memory ~ √T in reverse mode).
+        checkpoint: passed to :func:`jaxrb.rollout` (reverse mode keeps about √T step
+            inputs instead of T; pays when observations are sparse, ``every`` > 1).
         transforms: ``{name: name-or-Transform}`` overriding :data:`DEFAULT_TRANSFORMS`.
         tol, patience: early stopping (module docs); ``tol=None`` runs all steps.
         log_every: print the loss every this many updates (and at the end).

@@ -14,11 +14,14 @@ step). Scenes (float32 by default, like the other throughput benchmarks):
 **Memory** is XLA's own account of the compiled gradient program,
 ``jax.jit(grad).lower(...).compile().memory_analysis()``: ``temp_size_in_bytes``
 is the scratch the program allocates besides its arguments and outputs, and
-for reverse mode it is dominated by the residuals saved for the backward
-pass. Nothing is run, so T = 10 000 costs one compile, not 10 000 steps. It
-is measured without checkpointing and with ``rb.rollout(..., checkpoint=True)``
-(segments of about √T steps, each recomputed in the backward pass), so
-memory grows as T and about √T respectively.
+for reverse mode it is dominated by what is saved for the backward pass.
+Nothing is run, so T = 10 000 costs one compile, not 10 000 steps. It is
+measured without checkpointing and with ``rb.rollout(..., checkpoint=True)``
+(segments of about √T steps, each recomputed in the backward pass). Since
+``rb.rollout`` rematerialises every step, reverse mode saves one State a
+step, not the step's intermediates; this loss reads every state, so both
+grow as T, about two States a step without segments (the trajectory and
+each step's input) and one with them.
 
 **Time**: compile time apart; run = median of repeated calls with
 ``block_until_ready`` (:mod:`jaxrb.bench.timing`) of the forward loss and of
@@ -248,9 +251,9 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         "the whole rollout (`rb.rollout`, every step kept). *grad / forward*: median run time of the "
         f"jitted gradient over that of the jitted forward loss, T = {settings['gradient_time_steps']} "
         "(target ≤ 3×). *temp memory*: `temp_size_in_bytes` of XLA's `memory_analysis()` of the "
-        "compiled gradient (scratch besides arguments and outputs, mostly the residuals kept for "
-        "the backward pass); *segment*: steps per `jax.checkpoint` segment (`checkpoint=True`, "
-        "about √T).",
+        "compiled gradient (scratch besides arguments and outputs, mostly what is kept for the "
+        "backward pass: `rb.rollout` rematerialises each step, so about a State a step); "
+        "*segment*: steps per `jax.checkpoint` segment (`checkpoint=True`, about √T).",
         "",
         markdown(rows),
     ]
