@@ -103,11 +103,6 @@ def materialize(vector, params):
     return tuple(stored[present.index(i)] if i in present else 0.0 for i in range(3))
 
 
-def split(array):
-    """(..., k) array -> k-tuple of (...) arrays."""
-    return unstack(array)
-
-
 def matrix_parts(matrices):
     """(n, 3, 3) -> rows of (n,) entries."""
     return tuple(unstack(row) for row in unstack(matrices, -2))

@@ -56,7 +56,11 @@ def inverse_inertia(params: Params, dim: int):
     """
     if params.inv_inertia is not None:
         return params.inv_inertia
-    return inverse3(params.inertia) if dim == 3 else 1.0 / params.inertia
+    return _inverted(params.inertia, dim)
+
+
+def _inverted(inertia, dim: int):
+    return inverse3(inertia) if dim == 3 else 1.0 / inertia
 
 
 def with_inverse_inertia(params: Params, dim: int) -> Params:
@@ -69,7 +73,7 @@ def with_inverse_inertia(params: Params, dim: int) -> Params:
     Returns:
         Params whose ``inv_inertia`` is ``inertia``'s inverse, whatever it held.
     """
-    return params.replace(inv_inertia=inverse_inertia(params.replace(inv_inertia=None), dim))
+    return params.replace(inv_inertia=_inverted(params.inertia, dim))
 
 
 def net_wrench(model: Model, params: Params, applied: Wrench | None):

@@ -41,7 +41,7 @@ from jaxrb.collision.plane import BOX_CORNERS
 from jaxrb.collision.pairs import mix_friction
 from jaxrb.contact.penalty import damping_ratio_from_restitution, spring_activation
 from jaxrb.dynamics import inverse_inertia, net_wrench
-from jaxrb.math import safe_div
+from jaxrb.math import safe_div, unstack
 from jaxrb.types import Model, Params, State
 
 #: Pair kinds this path handles: each is a set of body-frame points swept by a radius.
@@ -223,8 +223,8 @@ class PlanePenalty:
             vector = tuple(rows(force[:, 1 + i], group) for i in range(3))
             friction.append(group.normal.tangential(vector, group.normal.vector(force.dtype)))
         return Carry(
-            pos=vec.split(state.pos), vel=vec.split(state.vel), angvel=vec.split(state.angvel),
-            quat=vec.split(state.quat), rotation=quat_ops.rotation_matrix_parts(vec.split(state.quat)),
+            pos=unstack(state.pos), vel=unstack(state.vel), angvel=unstack(state.angvel),
+            quat=unstack(state.quat), rotation=quat_ops.rotation_matrix_parts(unstack(state.quat)),
             normal_force=tuple(rows(force[:, 0], group) for group in self.groups),
             friction=tuple(friction), time=state.time)
 
@@ -267,7 +267,7 @@ class PlanePenalty:
         """
         model, dtype = self.model, params.mass.dtype
         inv_inertia = vec.matrix_parts(inverse_inertia(params, 3))
-        com = vec.split(params.com_offset)
+        com = unstack(params.com_offset)
         groups = []
         for group in self.groups:
             take = lambda values: _rows(values, group.bodies)
@@ -301,7 +301,7 @@ class PlanePenalty:
         model = self.model
         prepared = self.prepare(params) if prepared is None else prepared
         force, torque = net_wrench(model, params, applied)
-        force, torque = vec.split(force), vec.split(torque)
+        force, torque = unstack(force), unstack(torque)
         h = params.dt / model.substeps
         for _ in range(model.substeps):
             carry = self._substep(carry, params, prepared, force, torque, h)
