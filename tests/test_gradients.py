@@ -276,16 +276,19 @@ def test_penalty_restitution_gradient_matches_finite_differences(dim):
     check_against_fd(f"penalty {dim}D bounce", rollout_loss(model, params, state, 150),
                      theta_of(params, state, keys), CONTACT_TOLERANCE)
 
+
 def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeypatch):
     """The solver skips an inactive row with lax.cond; its derivatives select instead.
 
     ``impulse._guarded_row`` gives the row update a custom JVP (solve every row,
     drop an inactive one's result). Its gradient must equal that of
     differentiating the cond itself. The scene has rows of both kinds: a 2D
-    box falls 5 cm with a spin (speculative rows inactive), one corner lands
-    at about 0.1 s, inside the 0.2 s rollout. Float64, the same arithmetic in
-    another order: equal to 1e-9. (One relax sweep fewer than the default
-    keeps the two compiles short; the sweeps share ``_sweep_rows``.)
+    box falls 5 cm with a spin (speculative rows inactive) and lands at about
+    0.1 s, inside the 0.2 s rollout, slower than the bounce threshold, so
+    the solver's rows (not the time-of-impact pass) stop it. Float64, the
+    same arithmetic in another order: equal to 1e-9. (One relax sweep fewer
+    than the default keeps the two compiles short; the sweeps share
+    ``_sweep_rows``.)
     """
     from jaxrb.contact import impulse
 
@@ -293,7 +296,11 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     scene.add_plane(friction=0.5, restitution=0.3)
     scene.add_body(rb.Box((0.1, 0.1)), pos=(0.0, 0.15), vel=(1.0, 0.0), angvel=0.5, mass=1.0,
                    friction=0.5, restitution=0.6)
-    model, params, state = scene.build(contact="impulse", **dict(IMPULSE, relax_iterations=0))
+    model, params, state = scene.build(contact="impulse", **dict(IMPULSE, relax_iterations=0, bounce_threshold=2.0))
+    # Rows of both kinds: the box starts beyond the contact margin and is pushed on later.
+    assert float(state.pos[0, 1]) - 0.1 > float(params.contact_margin)
+    trajectory = rb.rollout(rb.make_step(model), state, params, 12)
+    assert float(jnp.max(trajectory.contact_impulse[..., 0])) > 0.0
     keys = ("state.pos", "state.vel", "state.angvel", "params.mass", "params.inertia", "params.friction",
             "params.restitution", "params.contact_hertz")
     theta = theta_of(params, state, keys)
@@ -308,7 +315,6 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     for key in keys:
         np.testing.assert_allclose(guarded[key], reference[key], rtol=1e-9, atol=1e-12, err_msg=key)
     assert any(float(jnp.max(jnp.abs(guarded[key]))) > 1e-3 for key in keys)
-
 
 
 # --------------------------------------------------------------------------- degenerate points
