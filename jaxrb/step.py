@@ -189,10 +189,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         checkpoint: ``False``; ``True`` to rematerialise in segments of about
             √(num_steps/every) saved states, so reverse mode keeps about √T
             step inputs instead of T; or an int segment length in saved
-            states. Either way each step is rematerialised on its own, so
+            states. Each step is rematerialised on its own in any case, so
             reverse mode keeps one State a step, not the step's
-            intermediates; and the trajectory returned is num_steps // every
-            States either way, so segments pay when ``every`` > 1.
+            intermediates; the trajectory returned is num_steps // every
+            States with or without segments, so segments pay when
+            ``every`` > 1.
         applied: optional Wrench with a leading time axis (num_steps, ...)
             applied one slice per step.
 

@@ -502,7 +502,13 @@ def _guarded_row(solve_row, active, operands):
     operands: (index, velocities, old, prep, separation, extra) as in
     :func:`_sweep_rows`; returns (velocities, lam_row).
     """
-    return jax.lax.cond(active, lambda ops: solve_row(*ops), lambda ops: (ops[1], ops[2]), operands)
+    return jax.lax.cond(active, lambda ops: solve_row(*ops), _kept, operands)
+
+
+def _kept(operands):
+    """What an inactive row leaves: its bodies' velocities and its impulses, unchanged."""
+    _, velocities, old = operands[:3]
+    return velocities, old
 
 
 @_guarded_row.defjvp
@@ -512,7 +518,7 @@ def _guarded_row_jvp(solve_row, primals, tangents):
     def selected(operands):
         solved = solve_row(*operands)
         return jax.tree_util.tree_map(lambda new, kept: jnp.where(active, new, kept), solved,
-                                      (operands[1], operands[2]))
+                                      _kept(operands))
 
     return jax.jvp(selected, (operands,), (tangents[1],))
 
