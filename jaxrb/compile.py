@@ -31,10 +31,19 @@ not what they compute, apart from rounding (fused multiply-adds may be
 contracted elsewhere). Set ``JAXRB_XLA_FLAGS=0`` to leave ``XLA_FLAGS`` alone;
 a ``XLA_FLAGS`` that already sets ``xla_backend_extra_options`` is left alone
 too.
+
+On a GPU, XLA may compute a float32 matrix product in TF32 (a 10-bit
+mantissa) unless told otherwise. The box-box narrowphase is written with
+``@`` on 3 × 3 frames, so the penalty 10-box column, which stands on CPU,
+sank 32–71 mm and fell on an H200. :func:`full_precision` traces a function
+with every product at :data:`MATMUL_PRECISION`; ``make_step``'s step uses it.
+On CPU it changes nothing: XLA's CPU backend computes float32 products in
+float32 either way.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 from typing import Callable
@@ -51,6 +60,10 @@ CPU_COMPILER_OPTIONS = {
 
 #: What :func:`use_xla_cpu_flags` appends to ``XLA_FLAGS``.
 CPU_XLA_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+
+#: Precision of every matrix product traced under :func:`full_precision`
+#: (``jax.default_matmul_precision``'s values; ``None`` leaves JAX's default).
+MATMUL_PRECISION = "highest"
 
 #: Set to "0" to keep :func:`use_xla_cpu_flags` from touching ``XLA_FLAGS``.
 OPT_OUT_VARIABLE = "JAXRB_XLA_FLAGS"
@@ -91,6 +104,28 @@ def _backends_started() -> bool:
 
 #: What :func:`use_xla_cpu_flags` did when jaxrb was imported (see there).
 XLA_FLAGS_STATUS = use_xla_cpu_flags()
+
+
+def full_precision(fn: Callable) -> Callable:
+    """``fn`` traced with every matrix product at :data:`MATMUL_PRECISION`.
+
+    The precision is fixed when ``fn`` is traced (``jax.default_matmul_precision``
+    sets each ``dot_general``'s precision as it is recorded), so it holds
+    however the caller jits, vmaps or differentiates ``fn``.
+
+    Args:
+        fn: any function that JAX traces.
+
+    Returns:
+        A function with ``fn``'s signature and name.
+    """
+    @functools.wraps(fn)
+    def traced_at_full_precision(*args, **kwargs):
+        precision = MATMUL_PRECISION
+        with (jax.default_matmul_precision(precision) if precision else contextlib.nullcontext()):
+            return fn(*args, **kwargs)
+
+    return traced_at_full_precision
 
 
 @functools.lru_cache(maxsize=None)

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb.collision.pairs import detect
+from jaxrb.compile import full_precision
 from jaxrb.contact import impulse, toi
 from jaxrb.contact.common import carried_impulses, pad
 from jaxrb.contact.penalty import penalty_wrench
@@ -45,6 +46,7 @@ def make_step(model: Model) -> Callable:
     else:
         run_substeps = _impulse_substeps(model)
 
+    @full_precision  # float32 products in float32 on GPUs too (jaxrb.compile)
     def step(state: State, params: Params, applied: Optional[Wrench] = None) -> State:
         force, torque = net_wrench(model, params, applied)
         state = run_substeps(state, params, force, torque, params.dt / substeps)

@@ -279,7 +279,8 @@ def _second_moment_forward(u):
             [u[..., 3], jnp.exp(u[..., 1]), zero],
             [u[..., 4], u[..., 5], jnp.exp(u[..., 2])]]
     lower = jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
-    second_moment = lower @ jnp.swapaxes(lower, -1, -2)
+    # In float32 on GPUs too, where XLA's default may be TF32 (jaxrb.compile).
+    second_moment = jnp.matmul(lower, jnp.swapaxes(lower, -1, -2), precision=jax.lax.Precision.HIGHEST)
     trace = jnp.trace(second_moment, axis1=-2, axis2=-1)[..., None, None]
     return trace * jnp.eye(3, dtype=u.dtype) - second_moment
 
