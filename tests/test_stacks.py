@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb.bench.contact import pyramid2d_scene
+from jaxrb.bench.contact import column_centres, pyramid2d_scene
 
 pytestmark = pytest.mark.slow
 HALF = 0.1  # 0.2 m boxes
@@ -52,12 +52,12 @@ def check_standing(model, params, state, traj, top):
 
 
 def column(dim, count, masses=None):
+    """Touching boxes, each set off sideways by up to 1 mm: an aligned column can stand by symmetry alone."""
     scene = rb.Scene(dim=dim)
     scene.add_plane(friction=0.5)
     box = rb.Box((HALF,) * dim)
-    for index in range(count):
-        pos = (0.0,) * (dim - 1) + (HALF + 2 * HALF * index,)
-        scene.add_body(box, mass=1.0 if masses is None else masses[index], pos=pos, friction=0.5)
+    for index, centre in enumerate(column_centres(count, dim)):
+        scene.add_body(box, mass=1.0 if masses is None else masses[index], pos=tuple(centre), friction=0.5)
     return scene
 
 

@@ -20,8 +20,10 @@ peer's own scene API (Jax2D, pymunk):
   0–1 mm, which is not sinking), *drift* = horizontal displacement of the
   top box at the end (largest over worlds). jaxrb runs it with impulse
   contact at dt = 1/60 s with 8 substeps and a 12-pair broadphase
-  (:data:`STACK_BUILD`), and with penalty contact at h = 1 ms with a spring
-  twice the default stiffness (:data:`STANDING_SETTINGS`; the same broadphase).
+  (:data:`STACK_BUILD`), and with penalty contact at h = 0.5 ms with the
+  spring of :data:`STACK_PENALTY_FREQUENCY` (:data:`STANDING_SETTINGS`; the
+  same broadphase). Every engine starts from the same column, each box set
+  off sideways by up to 1 mm (:func:`jaxrb.bench.contact.column_centres`).
 * **pyramid**: the 55-box 2D pyramid (10 rows, 5 % gaps, μ = 0.5), jaxrb
   against Jax2D at the same batch and pymunk in one world; *stands* = the top
   box moved less than 1 cm sideways and sank less than half a box (and, for
@@ -114,12 +116,17 @@ SCENE_TITLES = {"drop": "Box drop", "stack": "10-box stack", "pyramid": "2D 10-r
 #: both contact models at the peers' h = 2 ms (penalty being what Brax spring is).
 DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse", PEER_STEP, 1),
               ("penalty", PEER_STEP, 1))
-#: The penalty column's spring: √2 × the default frequency (0.03/h), so twice
-#: the stiffness. Measured at batch 16 over 5 s, the column sinks 11 mm with the
-#: default spring at h = 2 ms, 5.6 mm with this one; at h = 1 ms 3.2 mm with the
-#: default and 1.6 mm with this one; 4× the stiffness throws it up at both.
-STACK_PENALTY_STEP = 1e-3  # s
-STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / STACK_PENALTY_STEP  # Hz
+#: The penalty column's step and spring: 42.4 Hz, twice the stiffness of the
+#: default (0.03/h Hz) at h = 1 ms, stepped at h = 0.5 ms. From the aligned
+#: column (batch 16, 5 s) the default spring sank 11 mm at h = 2 ms and 3.2 mm
+#: at 1 ms, this one 1.6 mm at 1 ms. But from a column whose boxes are set off
+#: sideways by up to 1 mm (contact.column_centres, 8 worlds of other offsets),
+#: at h = 1 ms this spring's top box drifted 2–24 mm in 1 s and the default's up
+#: to 5 mm from 0.1 mm offsets: the explicit spring is too fast for the rocking
+#: of a box on its corners. At h = 0.5 ms it drifted ≤ 0.09 mm and sank
+#: ≤ 1.66 mm over 5 s; twice this stiffness at 0.5 ms drifted 36 mm.
+STACK_PENALTY_STEP = 5e-4  # s
+STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz
 #: jaxrb's settings for the standing scenes, by contact model and scene: (dt,
 #: substeps, extra Scene.build options). Impulse at its own setting. Penalty at
 #: the peers' h = 2 ms for the pyramid; the column needs half that step and
@@ -289,7 +296,7 @@ def boxes_mjcf(centres: Sequence[Sequence[float]], h: float, integrator: str = "
         The model as an XML string.
     """
     bodies = "\n".join(
-        f'    <body name="box{i}" pos="{x:.6f} {y:.6f} {z:.6f}"><freejoint/>'
+        f'    <body name="box{i}" pos="{x:.17g} {y:.17g} {z:.17g}"><freejoint/>'
         f'<geom type="box" size="{HALF} {HALF} {HALF}" mass="1" friction="{FRICTION}"/></body>'
         for i, (x, y, z) in enumerate(centres))
     return (f'<mujoco model="jaxrb_peer_boxes">\n'
@@ -305,8 +312,8 @@ def drop_mjcf(h: float = PEER_STEP) -> str:
 
 
 def stack_mjcf(h: float = PEER_STEP, count: int = STACK_COUNT) -> str:
-    """MJCF of a column of ``count`` touching boxes; see :func:`boxes_mjcf`."""
-    return boxes_mjcf([(0.0, 0.0, HALF + 2 * HALF * i) for i in range(count)], h)
+    """MJCF of jaxrb's column of ``count`` touching boxes (:func:`jaxrb.bench.contact.column_centres`)."""
+    return boxes_mjcf(contact.column_centres(count), h)
 
 
 def tumbler_mjcf(h: float, integrator: str = "RK4") -> str:

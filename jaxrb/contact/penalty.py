@@ -34,7 +34,11 @@ Friction (``Model.penalty_friction``) acts on the tangential slip v_t
 
 Limits. Forces are explicit, so the default spring (0.03/h Hz on the mean body
 mass) must stay slow against every body's contact modes. At h = 1 ms a 10-box
-3D stack and the 55-box 2D pyramid stand (1.1 mm deepest overlap); a 20-box 2D
+3D stack (its boxes set off sideways by up to 1 mm) and the 55-box 2D pyramid
+stand (1.1 mm deepest overlap), but the column's top box rocks by millimetres,
+and with a spring twice as stiff it drifted 2–24 mm in 1 s: a box rocking on
+its corners is the fastest mode. At h = 0.5 ms that stiffer spring holds the
+column to 0.1 mm (jaxrb.bench.peers, ``STACK_PENALTY_STEP``); a 20-box 2D
 column does not settle (its long-wave modes are barely damped under the
 damper cap, and the top boxes are thrown), and a 100 kg box on a 1 kg box
 blows up (the spring sized on the mean mass of 50 kg is far too stiff for the
