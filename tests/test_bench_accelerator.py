@@ -1,0 +1,38 @@
+"""``python -m jaxrb.bench.accelerator``: rows are measured, a failing row is reported, the file is written."""
+
+import math
+import re
+
+from jaxrb.bench import accelerator
+
+TINY = dict(accelerator.SETTINGS["quick"], free_batches=(2,), drop_batches=(2,), column_batches=(),
+            pyramid_batches=(), impulse_batches=(), gradient_scenes=(), steps=10)
+
+
+def _table_rows(markdown):
+    """Body rows of every Markdown table in ``markdown`` (no headers, no separators)."""
+    return [line for line in markdown.splitlines()
+            if line.startswith("| ") and not line.startswith(("| scene", "| :", "| -"))]
+
+
+def test_tiny_run_gives_one_finite_row_per_measurement(monkeypatch, tmp_path):
+    monkeypatch.setitem(accelerator.SETTINGS, "quick", TINY)
+    assert accelerator.main(["--quick", "--out", str(tmp_path)]) == 0
+    rows = _table_rows((tmp_path / "accelerator.md").read_text())
+    assert [row.split("|")[1].strip() for row in rows] == ["free bodies", "free bodies", "box drop"]
+    for row in rows:
+        rate = re.search(r"\|\s*([\d.]+) [kMG]?\s*\|[^|]*\|\s*$", row)
+        assert rate and math.isfinite(float(rate.group(1))) and float(rate.group(1)) > 0, row
+    assert "mm from resting height at 0.02 s" in rows[-1]
+
+
+def test_a_row_that_raises_is_reported_and_the_rest_still_run(monkeypatch):
+    def broken():
+        raise RuntimeError("RESOURCE_EXHAUSTED: out of memory\nmore detail")
+
+    real = accelerator.measurements(dict(TINY, drop_batches=()))
+    monkeypatch.setattr(accelerator, "measurements", lambda settings: [broken] + real)
+    rows = _table_rows(accelerator.run(TINY))
+    assert rows[0].startswith("| failed") and "RuntimeError: RESOURCE_EXHAUSTED: out of memory" in rows[0]
+    assert "more detail" not in rows[0]
+    assert [row.split("|")[1].strip() for row in rows[1:]] == ["free bodies", "free bodies"]
