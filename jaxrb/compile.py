@@ -34,9 +34,11 @@ too.
 
 On a GPU, XLA may compute a float32 matrix product in TF32 (a 10-bit
 mantissa) unless told otherwise. The box-box narrowphase is written with
-``@`` on 3 × 3 frames, so the penalty 10-box column, which stands on CPU,
-sank 32–71 mm and fell on an H200. :func:`full_precision` traces a function
-with every product at :data:`MATMUL_PRECISION`; ``make_step``'s step uses it.
+``@`` on 3 × 3 frames: on an H200 the penalty 10-box column sank 93 mm in
+1 s with such products and 11 mm without (docs/performance.md, section 10,
+where the rest of that fall is explained). :func:`full_precision` traces a
+function with every product at :data:`MATMUL_PRECISION`; ``make_step``'s
+step uses it.
 On CPU it changes nothing: XLA's CPU backend computes float32 products in
 float32 either way.
 """

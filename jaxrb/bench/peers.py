@@ -129,9 +129,9 @@ STACK_PENALTY_STEP = 5e-4  # s
 STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz
 #: jaxrb's settings for the standing scenes, by contact model and scene: (dt,
 #: substeps, extra Scene.build options). Impulse at its own setting. Penalty at
-#: the peers' h = 2 ms for the pyramid; the column needs half that step and
-#: the stiffer spring above to sink < 2 mm (its body-s/s column says what the
-#: smaller step costs).
+#: the peers' h = 2 ms for the pyramid; the column needs a quarter of that
+#: step and the stiffer spring above to sink < 2 mm and keep still (its
+#: body-s/s column says what the smaller step costs).
 STANDING_SETTINGS = {
     "impulse": {"stack": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], STACK_BUILD),
                 "pyramid": (JAXRB_BEST["dt"], JAXRB_BEST["substeps"], PYRAMID_BUILD)},
