@@ -38,9 +38,8 @@ mantissa) unless told otherwise. The box-box narrowphase is written with
 1 s with such products and 11 mm without (docs/performance.md, section 10,
 where the rest of that fall is explained). :func:`full_precision` traces a
 function with every product at :data:`MATMUL_PRECISION`; ``make_step``'s
-step uses it.
-On CPU it changes nothing: XLA's CPU backend computes float32 products in
-float32 either way.
+step uses it. On CPU it changes nothing: XLA's CPU backend computes float32
+products in float32 either way.
 """
 
 from __future__ import annotations

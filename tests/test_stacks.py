@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb.bench.contact import column_centres, pyramid2d_scene
+from jaxrb.bench.contact import column_scene, pyramid2d_scene
 
 pytestmark = pytest.mark.slow
 HALF = 0.1  # 0.2 m boxes
@@ -51,28 +51,18 @@ def check_standing(model, params, state, traj, top):
     assert abs(float(traj.pos[-1, top, -1] - state.pos[top, -1])) < 0.02
 
 
-def column(dim, count, masses=None):
-    """Touching boxes, each set off sideways by up to 1 mm: an aligned column can stand by symmetry alone."""
-    scene = rb.Scene(dim=dim)
-    scene.add_plane(friction=0.5)
-    box = rb.Box((HALF,) * dim)
-    for index, centre in enumerate(column_centres(count, dim)):
-        scene.add_body(box, mass=1.0 if masses is None else masses[index], pos=tuple(centre), friction=0.5)
-    return scene
-
-
 @pytest.mark.parametrize("build", [dict(substeps=4), dict(substeps=8, solver="jacobi"), PENALTY],
                          ids=["impulse", "impulse-jacobi", "penalty"])
 def test_ten_box_stack_3d(build):
-    check_standing(*run_stack(column(3, 10), **build), top=9)
+    check_standing(*run_stack(column_scene([1.0] * 10), **build), top=9)
 
 
 def test_twenty_box_stack_2d():
-    check_standing(*run_stack(column(2, 20), substeps=8), top=19)
+    check_standing(*run_stack(column_scene([1.0] * 20, dim=2), substeps=8), top=19)
 
 
 def test_mass_ratio_hundred_to_one():
-    check_standing(*run_stack(column(3, 2, masses=[1.0, 100.0]), substeps=8), top=1)
+    check_standing(*run_stack(column_scene([1.0, 100.0]), substeps=8), top=1)
 
 
 @pytest.mark.parametrize("build", [dict(substeps=4), PENALTY], ids=["impulse", "penalty"])
@@ -85,4 +75,4 @@ def test_pyramid_of_ten_rows_2d(build):
 def test_standing_check_fails_on_a_stack_that_falls():
     """The criteria can fail: at 5 Hz soft contacts (a twelfth of the default) the stack sinks and topples."""
     with pytest.raises(AssertionError):
-        check_standing(*run_stack(column(3, 10), substeps=4, contact_hertz=5.0), top=9)
+        check_standing(*run_stack(column_scene([1.0] * 10), substeps=4, contact_hertz=5.0), top=9)

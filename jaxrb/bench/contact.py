@@ -89,12 +89,21 @@ def column_centres(count: int, dim: int = 3, seed: int = 0) -> np.ndarray:
     return np.concatenate([offsets, heights[:, None]], axis=1)
 
 
-def stack3d_scene(count: int = 10):
-    scene = rb.Scene(dim=3)
+def column_scene(masses, dim: int = 3):
+    """A column of 0.2 m cubes (squares in 2D) on a plane, μ = 0.5; ``masses`` (kg) from the ground up.
+
+    The boxes stand at :func:`column_centres`, so a column cannot stand by
+    symmetry alone.
+    """
+    scene = rb.Scene(dim=dim)
     scene.add_plane(friction=0.5)
-    for centre in column_centres(count):
-        scene.add_body(rb.Box((HALF,) * 3), mass=1.0, pos=tuple(centre), friction=0.5)
+    for mass, centre in zip(masses, column_centres(len(masses), dim)):
+        scene.add_body(rb.Box((HALF,) * dim), mass=float(mass), pos=tuple(centre), friction=0.5)
     return scene
+
+
+def stack3d_scene(count: int = 10):
+    return column_scene([1.0] * count)
 
 
 def pyramid2d_scene(rows: int = 10):

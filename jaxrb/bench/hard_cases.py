@@ -86,7 +86,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrb as rb
-from jaxrb.bench.contact import column_centres, pyramid2d_scene
+from jaxrb.bench.contact import column_scene, pyramid2d_scene
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_step, markdown_table
 from jaxrb.compile import jit
 
@@ -298,19 +298,6 @@ def simulate(model, params, state, num_steps: int, every: int, chunk_steps: int,
 
 
 # --- scenes ----------------------------------------------------------------------------
-
-def column_scene(masses, dim: int = 3):
-    """A column of 0.2 m cubes (squares in 2D) on a plane, μ = 0.5; ``masses`` from the ground up.
-
-    Each box is set off sideways by up to 1 mm (:func:`jaxrb.bench.contact.column_centres`),
-    so a column cannot stand by symmetry alone.
-    """
-    scene = rb.Scene(dim=dim)
-    scene.add_plane(friction=FRICTION)
-    for mass, centre in zip(masses, column_centres(len(masses), dim)):
-        scene.add_body(rb.Box((HALF,) * dim), mass=float(mass), pos=tuple(centre), friction=FRICTION)
-    return scene
-
 
 def overlapped_pyramid_scene(rows: int, overlap: float):
     """2D pyramid whose boxes overlap each neighbour and the ground by ``overlap`` of their side.
