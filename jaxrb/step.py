@@ -8,6 +8,7 @@ from typing import Callable, Optional, Union
 import jax
 import jax.numpy as jnp
 
+from jaxrb import adjoint as hand_written
 from jaxrb.collision.pairs import detect
 from jaxrb.compile import full_precision
 from jaxrb.contact import impulse, toi
@@ -177,8 +178,23 @@ def _segment_length(num_saved: int, checkpoint: Union[bool, int]) -> int:
     return length
 
 
+def _check_adjoint(model: Optional[Model], checkpoint) -> None:
+    """Raise a ValueError naming why ``rollout(..., adjoint=True)`` cannot run."""
+    if model is None:
+        raise ValueError("rollout: adjoint=True needs a step from jaxrb.make_step (it reads step.model)")
+    if not hand_written.supports(model):
+        raise ValueError(
+            f"rollout: adjoint=True is written for 3D semi-implicit free bodies without damping; this model "
+            f"has dim={model.dim}, integrator={model.integrator!r}, contact={model.contact!r} with "
+            f"{model.num_contacts} contact rows, damping={model.damping} (use adjoint=False)")
+    if checkpoint:
+        raise ValueError("rollout: adjoint=True keeps every step's input State; checkpoint segments are not "
+                         "available with it (pass checkpoint=False)")
+
+
 def rollout(step: Callable, state: State, params: Params, num_steps: int, *, every: int = 1,
-            checkpoint: Union[bool, int] = False, applied: Optional[Wrench] = None) -> State:
+            checkpoint: Union[bool, int] = False, applied: Optional[Wrench] = None,
+            adjoint: bool = False) -> State:
     """Run ``step`` for ``num_steps`` steps with ``lax.scan`` and stack the states.
 
     Args:
@@ -198,6 +214,13 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
             ``every`` > 1.
         applied: optional Wrench with a leading time axis (num_steps, ...)
             applied one slice per step.
+        adjoint: reverse mode by :mod:`jaxrb.adjoint`'s hand-written adjoint
+            instead of autodiff: for 3D semi-implicit free bodies without
+            damping (``jaxrb.adjoint.supports``), a gradient 2-4× cheaper
+            (docs/performance.md, section 11). The States are the same;
+            forward mode (``jax.jvp``, ``jax.jacfwd``) is not available
+            through such a rollout, and ``checkpoint`` must stay False (it
+            keeps every step's input State, as ``checkpoint=False`` does).
 
     Returns:
         State whose arrays have a leading axis of length num_steps // every.
@@ -213,6 +236,10 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
                          f"every ({every})")
     num_saved = num_steps // every
     model = getattr(step, "model", None)
+    if adjoint:
+        _check_adjoint(model, checkpoint)
+        return hand_written.rollout(step, state, with_inverse_inertia(params, model.dim), num_steps, every,
+                                    applied)
     if model is not None:
         # Inverted once here, not in every step: reverse mode then sums the
         # inverse's cotangent over the steps and transposes the inverse once.
