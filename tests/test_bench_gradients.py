@@ -8,13 +8,15 @@ import pytest
 
 from jaxrb.bench import gradients
 
-TINY = dict(gradient_scenes=("tumble",), gradient_memory_steps=(1000,), gradient_time_steps=1000, repeats=2)
+TINY = dict(gradient_scenes=("tumble",), gradient_memory_steps=(1000,), gradient_time_steps=1000,
+            gradient_batch=4, repeats=2)
 
 
 @pytest.fixture(scope="module")
 def rows():
-    # One forward and two gradient compiles (with and without checkpointing) of
-    # the free-body scene; the memory rows come from the same compiled programs.
+    # The free-body scene's forward and its three gradients (autodiff, with
+    # checkpointing, the adjoint) at one world, then forward, autodiff and
+    # adjoint at 4 worlds; the memory rows come from the one-world programs.
     return gradients.run(TINY)
 
 
@@ -28,8 +30,9 @@ def state_bytes(name):
 def test_tiny_run_gives_finite_positive_numbers(rows):
     times = [row for row in rows if row["kind"] == "time"]
     memories = [row for row in rows if row["kind"] == "memory"]
-    assert [(row["scene"], row["checkpoint"]) for row in times] == [("tumble", False), ("tumble", True)]
-    assert [(row["num_steps"], row["checkpoint"]) for row in memories] == [(1000, False), (1000, True)]
+    assert [(row["batch"], row["method"]) for row in times] == [
+        (1, "autodiff"), (1, "checkpoint"), (1, "adjoint"), (4, "autodiff"), (4, "adjoint")]
+    assert [row["method"] for row in memories] == ["autodiff", "checkpoint", "adjoint"]
     for row in times:
         for key in ("forward_compile_s", "forward_s", "grad_compile_s", "grad_s", "ratio"):
             assert math.isfinite(row[key]) and row[key] > 0, (key, row)
@@ -40,21 +43,39 @@ def test_tiny_run_gives_finite_positive_numbers(rows):
 
 
 def test_gradient_keeps_about_one_state_per_step(rows):
-    unchecked, checked = [row["temp_bytes"] for row in rows if row["kind"] == "memory"]
+    unchecked, checked, hand_written = [row["temp_bytes"] for row in rows if row["kind"] == "memory"]
     # The loss reads every state, so the backward pass keeps at least the
     # stacked trajectory, T states. Rollout rematerialises each step, so
     # besides it keeps only each step's input state: about two States a step
     # (storing the step's intermediates took 14 States' worth a step).
     assert 1000 * state_bytes("tumble") <= unchecked < 3 * 1000 * state_bytes("tumble")
     assert checked <= unchecked
+    # The adjoint keeps the trajectory (every step's input) and a few stacked
+    # per-step cotangent factors: a few States' worth a step, no more.
+    assert 1000 * state_bytes("tumble") <= hand_written < 6 * 1000 * state_bytes("tumble")
+
+
+def test_target_table_takes_the_cheapest_method_per_batch(rows):
+    targets = gradients.target_rows(rows)
+    assert [row["batch"] for row in targets] == [1, 4]
+    for target in targets:
+        timed = [row for row in rows if row["kind"] == "time" and row["batch"] == target["batch"]]
+        assert target["ratio"] == min(row["ratio"] for row in timed)
+        assert target["passed"] == (target["ratio"] <= gradients.TARGET_RATIO)
+
+
+def test_scenes_without_an_adjoint_skip_it():
+    step, _, _ = gradients.build("box_bounce")
+    assert gradients.methods_for(step, ("autodiff", "adjoint")) == ["autodiff"]
 
 
 def test_markdown_has_one_line_per_row(rows):
     text = gradients.markdown(rows)
     lines = text.splitlines()
     assert lines[0].startswith("| scene") and "grad / forward" in lines[0]
-    assert sum(line.startswith("| tumble") for line in lines) == len(rows)
-    assert "temp memory" in text and "×" in text
+    # A line per row, and one per batch in the target table.
+    assert sum(line.startswith("| tumble") for line in lines) == len(rows) + 2
+    assert "temp memory" in text and "×" in text and "target" in text
 
 
 def test_unknown_scene_is_a_value_error():
@@ -66,5 +87,5 @@ def test_unknown_scene_is_a_value_error():
 def test_contact_gradient_keeps_about_one_state_per_step():
     # The impulse-contact gradient takes about a minute to compile. Storing the
     # step's intermediates took 245 States' worth a step.
-    unchecked = gradients.gradient_memory("box_bounce", 1000, checkpoint=False)
+    unchecked = gradients.gradient_memory("box_bounce", 1000, "autodiff")
     assert 1000 * state_bytes("box_bounce") <= unchecked["temp_bytes"] < 3 * 1000 * state_bytes("box_bounce")

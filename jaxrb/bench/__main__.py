@@ -21,14 +21,14 @@ SETTINGS = {
                   throughput_steps=1000, num_bodies=8,
                   contact_scenes=("bounce", "slide", "drop"), contact_batches=(64, 16),
                   contact_steps=100, gradient_scenes=("tumble",), gradient_memory_steps=(1000,),
-                  gradient_time_steps=1000),
+                  gradient_time_steps=1000, gradient_batch=64),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
                  contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
                  contact_batches=(1024, 16), contact_steps=100,
                  gradient_scenes=("tumble", "box_bounce"), gradient_memory_steps=(1000, 10000),
-                 gradient_time_steps=1000),
+                 gradient_time_steps=1000, gradient_batch=1024),
 }
 
 
@@ -81,8 +81,9 @@ def main(argv=None) -> int:
                        if {"stack3d", "pyramid2d"} & set(settings["contact_scenes"]) else "")
                     + f", {settings['contact_steps']} steps per jitted scan, float32"),
         "gradients": (f"scenes {', '.join(settings['gradient_scenes'])}, memory at T = "
-                      f"{', '.join(map(str, settings['gradient_memory_steps']))} with and without "
-                      f"checkpointing, time at T = {settings['gradient_time_steps']}, float32"),
+                      f"{', '.join(map(str, settings['gradient_memory_steps']))} for autodiff (with and "
+                      f"without checkpointing) and the hand-written adjoint, time at T = "
+                      f"{settings['gradient_time_steps']} at 1 and {settings['gradient_batch']} worlds, float32"),
         "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
                       f"{', '.join(settings['smoothing_sweeps'])}, float64"),
         "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: every "

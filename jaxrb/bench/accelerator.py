@@ -107,7 +107,7 @@ def gradient_rows(settings: dict, log) -> list:
     rows = []
     for name in settings["gradient_scenes"]:
         timed = gradients.gradient_time(name, settings["gradient_steps"], repeats=settings["repeats"],
-                                        checkpoints=(False,), log=log)[0]
+                                        methods=("autodiff",), log=log)[0]
         rows.append([name, settings["gradient_steps"], fmt_fixed(timed["forward_s"] * 1e3, 3),
                      fmt_fixed(timed["grad_s"] * 1e3, 3), f"{timed['ratio']:.2f}×",
                      fmt_fixed(timed["grad_compile_s"], 1)])

@@ -27,7 +27,14 @@ each step's input) and one with them.
 ``block_until_ready`` (:mod:`jaxrb.bench.timing`) of the forward loss and of
 its gradient, both over the same T steps. The ratio grad / forward is the
 "cheap gradient" figure (target ≤ 3×; checkpointing adds about one more
-forward pass).
+forward pass). Timed at one world, and for scenes with a hand-written
+adjoint also at ``gradient_batch`` worlds (``vmap`` over the initial
+states, Params shared, the loss their mean).
+
+**Methods** (:data:`METHODS`): ``autodiff`` (``rb.rollout``'s reverse
+mode), ``checkpoint`` (the same with ``checkpoint=True``) and ``adjoint``
+(``rb.rollout(..., adjoint=True)``, :mod:`jaxrb.adjoint`; only where the
+scene's model has one, so not *box_bounce*).
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxrb as rb
+from jaxrb import adjoint
 from jaxrb.bench.report import fmt_fixed, markdown_table
 from jaxrb.bench.timing import compile_jitted, time_compiled
 from jaxrb.step import _segment_length
@@ -65,9 +73,16 @@ SCENES = {
                dict(dt=1 / 240, integrator="semi_implicit")),
 }
 
+#: How reverse mode is taken: method -> rollout keywords (see the module docs).
+METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": dict(adjoint=True)}
+
 #: What :func:`run` does by default; ``python -m jaxrb.bench`` passes its own.
+#: ``gradient_batch``: worlds of the batched time rows (None: none).
 DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce"), gradient_memory_steps=(1000, 10000),
-                        gradient_time_steps=1000, repeats=5, gradient_dtype="float32")
+                        gradient_time_steps=1000, gradient_batch=1024, repeats=5, gradient_dtype="float32")
+
+#: The issue's target for grad / forward.
+TARGET_RATIO = 3.0
 
 
 def trajectory_loss(trajectory) -> jax.Array:
@@ -85,27 +100,46 @@ def trajectory_loss(trajectory) -> jax.Array:
     return loss
 
 
-def make_loss(step: Callable, num_steps: int, checkpoint: bool) -> Callable:
-    """``loss(params, state)`` of a ``num_steps`` rollout (see :func:`trajectory_loss`)."""
+def make_loss(step: Callable, num_steps: int, method: str = "autodiff", batch: int = 1) -> Callable:
+    """``loss(params, state)`` of a ``num_steps`` rollout (see :func:`trajectory_loss`).
+
+    Args:
+        step: from ``rb.make_step``.
+        num_steps: T.
+        method: a key of :data:`METHODS`.
+        batch: 1, or the number of worlds ``state`` holds (leading axis): the
+            loss is then the mean of theirs.
+    """
+    options = METHODS[method]
 
     def loss(params, state):
-        return trajectory_loss(rb.rollout(step, state, params, num_steps, checkpoint=checkpoint))
+        return trajectory_loss(rb.rollout(step, state, params, num_steps, **options))
 
-    return loss
+    if batch == 1:
+        return loss
+    return lambda params, states: jnp.mean(jax.vmap(loss, in_axes=(None, 0))(params, states))
 
 
-def build(name: str, dtype="float32"):
-    """``(step, params, state)`` of scene ``name`` from :data:`SCENES`."""
+def build(name: str, dtype="float32", batch: int = 1):
+    """``(step, params, state)`` of scene ``name`` from :data:`SCENES`; ``batch`` > 1 stacks that many copies of the state."""
     if name not in SCENES:
         raise ValueError(f"gradients: unknown scene {name!r}; valid scenes are: {', '.join(SCENES)}")
     factory, _, settings = SCENES[name]
     model, params, state = factory().build(dtype=jnp.dtype(dtype), **settings)
+    if batch > 1:
+        state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), state)
     return rb.make_step(model), params, state
 
 
-def _memory_row(name, num_steps, checkpoint, compiled, compile_s) -> dict:
+def methods_for(step, methods: Sequence[str]) -> list:
+    """``methods`` less ``"adjoint"`` where ``step``'s model has no hand-written adjoint."""
+    return [m for m in methods if m != "adjoint" or adjoint.supports(step.model)]
+
+
+def _memory_row(name, num_steps, method, compiled, compile_s) -> dict:
     stats = compiled.memory_analysis()
-    return dict(kind="memory", scene=name, num_steps=num_steps, checkpoint=checkpoint,
+    checkpoint = method == "checkpoint"
+    return dict(kind="memory", scene=name, num_steps=num_steps, method=method, checkpoint=checkpoint,
                 segment=_segment_length(num_steps, True) if checkpoint else None,
                 temp_bytes=int(stats.temp_size_in_bytes),
                 argument_bytes=int(stats.argument_size_in_bytes),
@@ -113,57 +147,61 @@ def _memory_row(name, num_steps, checkpoint, compiled, compile_s) -> dict:
                 bytes_per_step=stats.temp_size_in_bytes / num_steps, compile_s=compile_s)
 
 
-def gradient_memory(name: str, num_steps: int, checkpoint: bool, dtype="float32") -> dict:
+def gradient_memory(name: str, num_steps: int, method: str = "autodiff", dtype="float32") -> dict:
     """Compile the gradient of a ``num_steps`` rollout loss and read XLA's memory account.
 
     Returns:
-        A row: ``kind="memory"``, ``scene``, ``num_steps``, ``checkpoint``,
-        ``segment`` (checkpoint segment length in steps, or None),
-        ``temp_bytes``, ``argument_bytes``, ``output_bytes``,
-        ``bytes_per_step`` (temp / T) and ``compile_s``.
+        A row: ``kind="memory"``, ``scene``, ``num_steps``, ``method``,
+        ``checkpoint`` (method == "checkpoint"), ``segment`` (checkpoint
+        segment length in steps, or None), ``temp_bytes``,
+        ``argument_bytes``, ``output_bytes``, ``bytes_per_step`` (temp / T)
+        and ``compile_s``.
     """
     step, params, state = build(name, dtype)
-    compiled, compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, checkpoint)), params, state)
-    return _memory_row(name, num_steps, checkpoint, compiled, compile_s)
+    compiled, compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, method)), params, state)
+    return _memory_row(name, num_steps, method, compiled, compile_s)
 
 
 def gradient_time(name: str, num_steps: int, repeats: int = 5, dtype="float32",
-                  checkpoints: Sequence[bool] = (False, True), budget_s: float = 5.0, log=None) -> list:
+                  methods: Sequence[str] = ("autodiff", "checkpoint", "adjoint"), batch: int = 1,
+                  budget_s: float = 5.0, log=None) -> list:
     """Time the forward loss and its gradient over ``num_steps`` steps.
 
     Each function gets one warm-up call and up to ``repeats`` timed calls,
     fewer (but at least 3) once ``budget_s`` seconds of timed calls are spent.
+    Methods the scene has no adjoint for are skipped (:func:`methods_for`).
 
-    Every gradient compiled here also yields its memory row, so a caller that
-    times T steps need not compile the same programs again for memory.
+    Every gradient compiled here at one world also yields its memory row, so
+    a caller that times T steps need not compile the same programs again.
 
     Returns:
-        Rows: one ``kind="time"`` per entry of ``checkpoints`` (``scene``,
-        ``num_steps``, ``checkpoint``, ``forward_compile_s``, ``forward_s``,
-        ``grad_compile_s``, ``grad_s``, ``ratio`` = grad_s / forward_s,
-        ``forward_temp_bytes``), then the matching ``kind="memory"`` rows.
+        Rows: one ``kind="time"`` per method (``scene``, ``batch``,
+        ``num_steps``, ``method``, ``checkpoint``, ``forward_compile_s``,
+        ``forward_s``, ``grad_compile_s``, ``grad_s``, ``ratio`` =
+        grad_s / forward_s, ``forward_temp_bytes``), then at one world the
+        matching ``kind="memory"`` rows.
     """
     log = log or (lambda text: None)
-    step, params, state = build(name, dtype)
-    forward, forward_compile_s = compile_jitted(make_loss(step, num_steps, False), params, state)
+    step, params, state = build(name, dtype, batch)
+    forward, forward_compile_s = compile_jitted(make_loss(step, num_steps, batch=batch), params, state)
     forward_s, _, value = time_compiled(forward, params, state, repeats=repeats, budget_s=budget_s)
     if not bool(jnp.isfinite(value)):
         raise FloatingPointError(f"gradients bench {name}: non-finite loss {value}")
     forward_temp = int(forward.memory_analysis().temp_size_in_bytes)
     times, memories = [], []
-    for checkpoint in checkpoints:
-        grad, grad_compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, checkpoint)), params, state)
+    for method in methods_for(step, methods):
+        grad, grad_compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, method, batch)), params, state)
         grad_s, _, gradient = time_compiled(grad, params, state, repeats=repeats, budget_s=budget_s)
         if not all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(gradient)):
-            raise FloatingPointError(f"gradients bench {name}: non-finite gradient "
-                                     f"(checkpoint={checkpoint})")
-        times.append(dict(kind="time", scene=name, num_steps=num_steps, checkpoint=checkpoint,
-                          forward_compile_s=forward_compile_s, forward_s=forward_s,
-                          grad_compile_s=grad_compile_s, grad_s=grad_s, ratio=grad_s / forward_s,
-                          forward_temp_bytes=forward_temp))
-        memories.append(_memory_row(name, num_steps, checkpoint, grad, grad_compile_s))
-        log(f"gradients {name:>10} T={num_steps} checkpoint={checkpoint!s:5}: "
-            f"forward {forward_s * 1e3:.2f} ms, grad {grad_s * 1e3:.2f} ms (x{grad_s / forward_s:.2f}), grad compile {grad_compile_s:.1f} s")
+            raise FloatingPointError(f"gradients bench {name}: non-finite gradient ({method})")
+        times.append(dict(kind="time", scene=name, batch=batch, num_steps=num_steps, method=method,
+                          checkpoint=method == "checkpoint", forward_compile_s=forward_compile_s,
+                          forward_s=forward_s, grad_compile_s=grad_compile_s, grad_s=grad_s,
+                          ratio=grad_s / forward_s, forward_temp_bytes=forward_temp))
+        if batch == 1:
+            memories.append(_memory_row(name, num_steps, method, grad, grad_compile_s))
+        log(f"gradients {name:>10} batch {batch} T={num_steps} {method:>10}: forward {forward_s * 1e3:.2f} ms, "
+            f"grad {grad_s * 1e3:.2f} ms (x{grad_s / forward_s:.2f}), grad compile {grad_compile_s:.1f} s")
     return times + memories
 
 
@@ -174,34 +212,57 @@ def run(settings: Optional[dict] = None, log=None) -> list:
         settings: keys of :data:`DEFAULT_SETTINGS` (missing ones take the
             default): ``gradient_scenes``, ``gradient_memory_steps`` (T
             values for memory), ``gradient_time_steps`` (T for timing, whose
-            memory comes from the same compiled programs), ``repeats``,
-            ``gradient_dtype``. Other keys are ignored, so the command
-            line's whole settings dict can be passed.
+            memory comes from the same compiled programs),
+            ``gradient_batch``, ``repeats``, ``gradient_dtype``. Other keys
+            are ignored, so the command line's whole settings dict can be
+            passed.
         log: optional ``log(text)`` for progress.
 
     Returns:
-        The ``"time"`` rows, then the ``"memory"`` rows ordered by scene, T,
-        checkpoint.
+        The ``"time"`` rows (one world, then ``gradient_batch`` worlds for
+        scenes with an adjoint: autodiff and adjoint), then the ``"memory"``
+        rows ordered by scene, T, method.
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
     log = log or (lambda text: None)
+    time_steps, dtype = settings["gradient_time_steps"], settings["gradient_dtype"]
     times, memories = [], []
     for name in settings["gradient_scenes"]:
-        timed = gradient_time(name, settings["gradient_time_steps"], repeats=settings["repeats"],
-                              dtype=settings["gradient_dtype"], log=log)
+        timed = gradient_time(name, time_steps, repeats=settings["repeats"], dtype=dtype, log=log)
         times += [row for row in timed if row["kind"] == "time"]
         memories += [row for row in timed if row["kind"] == "memory"]
+        methods = [row["method"] for row in timed if row["kind"] == "time"]
+        if settings["gradient_batch"] and "adjoint" in methods:
+            times += gradient_time(name, time_steps, repeats=settings["repeats"], dtype=dtype,
+                                   methods=("autodiff", "adjoint"), batch=settings["gradient_batch"], log=log)
         for num_steps in settings["gradient_memory_steps"]:
-            if num_steps == settings["gradient_time_steps"]:
+            if num_steps == time_steps:
                 continue  # measured above from the timed programs
-            for checkpoint in (False, True):
-                row = gradient_memory(name, num_steps, checkpoint, settings["gradient_dtype"])
-                log(f"gradients {name:>10} T={num_steps} checkpoint={checkpoint!s:5}: temp "
+            for method in methods:
+                row = gradient_memory(name, num_steps, method, dtype)
+                log(f"gradients {name:>10} T={num_steps} {method:>10}: temp "
                     f"{row['temp_bytes'] / 1e6:.2f} MB, compile {row['compile_s']:.1f} s")
                 memories.append(row)
     memories.sort(key=lambda row: (settings["gradient_scenes"].index(row["scene"]), row["num_steps"],
-                                   row["checkpoint"]))
+                                   list(METHODS).index(row["method"])))
     return times + memories
+
+
+def target_rows(rows: Sequence[dict]) -> list:
+    """Per scene and batch, the cheapest gradient against :data:`TARGET_RATIO`.
+
+    Returns:
+        Dicts: ``scene``, ``batch``, ``method`` (the cheapest), ``ratio``,
+        ``passed`` (ratio ≤ the target).
+    """
+    best = {}
+    for row in rows:
+        if row["kind"] == "time":
+            key = (row["scene"], row["batch"])
+            if key not in best or row["ratio"] < best[key]["ratio"]:
+                best[key] = row
+    return [dict(scene=row["scene"], batch=row["batch"], method=row["method"], ratio=row["ratio"],
+                 passed=row["ratio"] <= TARGET_RATIO) for row in best.values()]
 
 
 def fmt_bytes(value) -> str:
@@ -214,29 +275,32 @@ def fmt_bytes(value) -> str:
 
 
 def markdown(rows: Sequence[dict]) -> str:
-    """Two Markdown tables (time, then memory) from the rows of :func:`run`."""
+    """Markdown tables (time, target, memory) from the rows of :func:`run`."""
     times = [row for row in rows if row["kind"] == "time"]
     memories = [row for row in rows if row["kind"] == "memory"]
-    unchecked = {(row["scene"], row["num_steps"]): row["temp_bytes"] for row in memories
-                 if not row["checkpoint"]}
+    autodiff = {(row["scene"], row["num_steps"]): row["temp_bytes"] for row in memories
+                if row["method"] == "autodiff"}
     parts = []
     if times:
         parts.append(markdown_table(
-            ["scene", "T", "checkpoint", "forward compile (s)", "forward run (ms)", "grad compile (s)",
+            ["scene", "batch", "T", "method", "forward compile (s)", "forward run (ms)", "grad compile (s)",
              "grad run (ms)", "grad / forward"],
-            [[row["scene"], row["num_steps"], "yes" if row["checkpoint"] else "no",
+            [[row["scene"], row["batch"], row["num_steps"], row["method"],
               fmt_fixed(row["forward_compile_s"], 2), fmt_fixed(1e3 * row["forward_s"], 2),
               fmt_fixed(row["grad_compile_s"], 2), fmt_fixed(1e3 * row["grad_s"], 2),
               fmt_fixed(row["ratio"], 2) + "×"] for row in times]))
+        parts.append(markdown_table(
+            ["scene", "batch", f"target: grad / forward ≤ {TARGET_RATIO:g}×", "status"],
+            [[row["scene"], row["batch"], f"{row['ratio']:.2f}× ({row['method']})",
+              "**PASS**" if row["passed"] else "**MISSED**"] for row in target_rows(rows)]))
     if memories:
         parts.append(markdown_table(
-            ["scene", "T", "checkpoint", "segment", "temp memory", "bytes / step", "vs no checkpoint",
-             "compile (s)"],
-            [[row["scene"], row["num_steps"], "yes" if row["checkpoint"] else "no",
+            ["scene", "T", "method", "segment", "temp memory", "bytes / step", "vs autodiff", "compile (s)"],
+            [[row["scene"], row["num_steps"], row["method"],
               row["segment"] if row["segment"] else "—", fmt_bytes(row["temp_bytes"]),
               fmt_fixed(row["bytes_per_step"], 0),
-              fmt_fixed(row["temp_bytes"] / unchecked[(row["scene"], row["num_steps"])], 3)
-              if (row["scene"], row["num_steps"]) in unchecked else "—",
+              fmt_fixed(row["temp_bytes"] / autodiff[(row["scene"], row["num_steps"])], 3)
+              if (row["scene"], row["num_steps"]) in autodiff else "—",
               fmt_fixed(row["compile_s"], 1)] for row in memories]))
     return "\n\n".join(parts)
 
@@ -250,10 +314,14 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         f"{settings['gradient_dtype']}; `jax.grad` with respect to all Params of the mean squared state over "
         "the whole rollout (`rb.rollout`, every step kept). *grad / forward*: median run time of the "
         f"jitted gradient over that of the jitted forward loss, T = {settings['gradient_time_steps']} "
-        "(target ≤ 3×). *temp memory*: `temp_size_in_bytes` of XLA's `memory_analysis()` of the "
-        "compiled gradient (scratch besides arguments and outputs, mostly what is kept for the "
-        "backward pass: `rb.rollout` rematerialises each step, so about a State a step); "
-        "*segment*: steps per `jax.checkpoint` segment (`checkpoint=True`, about √T).",
+        "(target ≤ 3×). *method*: `autodiff` is `rb.rollout`'s reverse mode, `checkpoint` the same "
+        "with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
+        "adjoint of 3D semi-implicit free bodies (`jaxrb.adjoint`; none for contact). *batch*: worlds "
+        "(`vmap` over the initial state, Params shared, the loss their mean). *temp memory*: "
+        "`temp_size_in_bytes` of XLA's `memory_analysis()` of the compiled gradient (scratch besides "
+        "arguments and outputs, mostly what is kept for the backward pass: `rb.rollout` "
+        "rematerialises each step, so about a State a step); *segment*: steps per `jax.checkpoint` "
+        "segment (`checkpoint=True`, about √T).",
         "",
         markdown(rows),
     ]
