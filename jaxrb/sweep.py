@@ -294,7 +294,7 @@ def sweep(fn: Callable, params_batch: Optional[Params] = None, states_batch: Opt
 # --- the common case: roll out, then reduce ---------------------------------------------------
 
 def rollout_outcome(step: Callable, num_steps: int, outcome: Optional[Callable] = None, *,
-                    every: int = 1, checkpoint: Union[bool, int] = False) -> Callable:
+                    every: int = 1, checkpoint: Union[bool, int] = False, adjoint: bool = False) -> Callable:
     """``fn(state, params)`` that rolls ``step`` out and reduces the trajectory to an outcome.
 
     Build it once and pass it to :func:`sweep` (or ``jax.grad`` it): the
@@ -310,6 +310,8 @@ def rollout_outcome(step: Callable, num_steps: int, outcome: Optional[Callable] 
             None returns the trajectory itself.
         every: keep every ``every``-th state (less memory, coarser outcome).
         checkpoint: passed to :func:`jaxrb.rollout` (reverse-mode memory).
+        adjoint: passed to :func:`jaxrb.rollout` (hand-written reverse mode;
+            no forward mode through ``fn`` then).
 
     Returns:
         ``fn(state, params) -> outcome(rollout(step, state, params, num_steps), params)``.
@@ -320,7 +322,8 @@ def rollout_outcome(step: Callable, num_steps: int, outcome: Optional[Callable] 
         raise ValueError(f"rollout_outcome: 'outcome' must be callable, got {outcome!r}")
 
     def run(state: State, params: Params):
-        trajectory = rollout(step, state, params, int(num_steps), every=every, checkpoint=checkpoint)
+        trajectory = rollout(step, state, params, int(num_steps), every=every, checkpoint=checkpoint,
+                             adjoint=adjoint)
         return trajectory if outcome is None else outcome(trajectory, params)
 
     return run

@@ -54,6 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxrb import adjoint as hand_written
 from jaxrb._struct import pytree_dataclass
 from jaxrb.compile import jit
 from jaxrb.math import safe_norm
@@ -567,7 +568,8 @@ def _gcd(values) -> int:
 
 
 def make_objective(step: Callable, num_steps: int, every: int, *, weights=None, loss: Optional[Callable] = None,
-                   checkpoint: Union[bool, int] = False, batched: bool = False) -> Callable:
+                   checkpoint: Union[bool, int] = False, batched: bool = False,
+                   adjoint: bool = False) -> Callable:
     """``objective(params, initial_state, observed, applied) -> ()`` for one or many trajectories.
 
     Rolls out ``num_steps`` steps (keeping every ``every``-th state), samples
@@ -585,6 +587,8 @@ def make_objective(step: Callable, num_steps: int, every: int, *, weights=None, 
         loss: optional ``loss(predicted, observed) -> ()`` replacing
             :func:`trajectory_loss`.
         checkpoint: passed to :func:`jaxrb.rollout`.
+        adjoint: passed to :func:`jaxrb.rollout` (the hand-written reverse
+            mode; the objective then has no forward mode).
         batched: average over a leading batch axis B of the trajectories.
 
     Returns:
@@ -594,7 +598,7 @@ def make_objective(step: Callable, num_steps: int, every: int, *, weights=None, 
     score = loss if loss is not None else (lambda predicted, observed: trajectory_loss(predicted, observed, weights))
 
     def one(params, initial_state, observed, applied):
-        states = rollout(step, initial_state, params, num_steps, every=every, checkpoint=checkpoint,
+        states = rollout(step, initial_state, params, num_steps, every=every, checkpoint=checkpoint, adjoint=adjoint,
                          applied=applied)
         index = observed.steps // every - 1
         predicted = jax.tree_util.tree_map(lambda a: a[index], states)
@@ -617,7 +621,7 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
         applied: Optional[Wrench] = None, every: Optional[int] = None, checkpoint: Union[bool, int] = False,
         transforms: Optional[Mapping] = None, tol: Optional[float] = None, patience: int = 20,
         log_every: Optional[int] = None, callback: Optional[Callable] = None,
-        callback_every: int = 1, print_fn: Callable = print) -> FitResult:
+        callback_every: int = 1, print_fn: Callable = print, adjoint: Optional[bool] = None) -> FitResult:
     """Fit the selected Params fields to observed trajectories with an optax optimiser.
 
     Each iteration rolls the scene out from ``initial_state``, compares it with
@@ -655,6 +659,11 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
             and the Params at that point.
         callback_every: how often (in updates) ``callback`` is called.
         print_fn: where ``log_every`` lines go (e.g. ``logging.info``).
+        adjoint: take gradients with :func:`jaxrb.rollout`'s hand-written
+            adjoint (``adjoint=True``); None (default) does where the model
+            has one (``jaxrb.adjoint.supports``: 3D semi-implicit free bodies
+            without damping) and ``checkpoint`` is off. A fit only uses reverse
+            mode, and the adjoint's gradients equal autodiff's to rounding.
 
     Returns:
         :class:`FitResult` with the best Params and the loss history.
@@ -688,8 +697,11 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
 
     masks = field_masks(params, fields)
     unconstrained = to_unconstrained(params, masks, transforms)
+    if adjoint is None:
+        model = getattr(step, "model", None)
+        adjoint = model is not None and hand_written.supports(model) and not checkpoint
     objective = make_objective(step, rollout_steps, every, weights=weights, loss=loss,
-                               checkpoint=checkpoint, batched=batched)
+                               checkpoint=checkpoint, batched=batched, adjoint=adjoint)
 
     def total_loss(u, base, state, obs, wrench):
         return objective(from_unconstrained(u, base, masks, transforms), state, obs, wrench)
