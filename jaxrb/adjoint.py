@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb import components as vec, quaternion as quat_ops
+from jaxrb.dynamics import net_wrench
 from jaxrb.math import unstack
 from jaxrb.types import Model, Params, State, Wrench
 
@@ -221,16 +222,6 @@ def _substep_adjoint(orientation, inertia, inv_inertia, accel, h, saved, g_out, 
 
 # ---------------------------------------------------------------- one step
 
-def _step_loads(params: Params, applied: Optional[Wrench]):
-    """(force, torque) as ``dynamics.net_wrench`` computes them: (n, 3) each, or (T, n, 3) where
-    ``applied`` has a leading axis T."""
-    force = params.mass[:, None] * params.gravity + params.force
-    torque = params.torque
-    if applied is not None:
-        force, torque = force + applied.force, torque + applied.torque
-    return force, torque
-
-
 def _step_adjoint(model: Model, params: Params, state: State, applied: Optional[Wrench], g_after, keep):
     """Cotangents of one ``make_step`` step's input State from those of its output State.
 
@@ -246,7 +237,7 @@ def _step_adjoint(model: Model, params: Params, state: State, applied: Optional[
         (g_before, pieces): g_before like g_after for the input State; pieces
         the :func:`_substep_adjoint` pieces with a leading substep axis.
     """
-    force, torque = _step_loads(params, applied)
+    force, torque = net_wrench(model, params, applied)
     accel, torque = unstack(force / params.mass[:, None]), unstack(torque)
     inertia, inv_inertia = vec.matrix_parts(params.inertia), vec.matrix_parts(params.inv_inertia)
     h = params.dt / model.substeps
@@ -279,12 +270,13 @@ def _parameter_cotangents(model: Model, params: Params, applied: Optional[Wrench
     """
     def outer_sum(stacked):
         # (T, substeps, 6, n) -> (n, 3, 3): Σ over steps and substeps of outer(first 3, last 3).
-        return jnp.einsum("tsin,tsjn->nij", stacked[:, :, :3], stacked[:, :, 3:])
+        return jnp.einsum("tsin,tsjn->nij", stacked[:, :, :3], stacked[:, :, 3:],
+                          precision=jax.lax.Precision.HIGHEST)  # no TF32 on GPUs (jaxrb.compile)
 
     loads = jnp.sum(pieces["loads"], axis=1)                # (T, 6, n)
     g_accel = jnp.moveaxis(loads[:, :3], 1, 2)              # (T, n, 3)
     g_torque = jnp.moveaxis(loads[:, 3:], 1, 2)
-    force, _ = _step_loads(params, applied)
+    force, _ = net_wrench(model, params, applied)           # (n, 3), or (T, n, 3) with applied loads
     g_force = g_accel / params.mass[:, None]
     g_mass = (jnp.sum(g_force * params.gravity, axis=(0, 2))
               - jnp.sum(g_accel * force, axis=(0, 2)) / params.mass ** 2)
