@@ -63,17 +63,21 @@ def case(request):
                 autodiff=objective(False)(params, state, applied), adjoint=objective(True)(params, state, applied))
 
 
-def test_gradients_equal_autodiffs(case):
-    compared = 0
-    for (path, expected), got in zip(jax.tree_util.tree_leaves_with_path(case["autodiff"]),
-                                     jax.tree_util.tree_leaves(case["adjoint"])):
-        scale = float(jnp.max(jnp.abs(expected))) if expected.size else 0.0
-        assert bool(jnp.all(jnp.isfinite(got))), jax.tree_util.keystr(path)
-        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * max(scale, 1e-300),
+def assert_same_gradients(expected, got):
+    """Each leaf of ``got`` finite and within 1e-9 of autodiff's largest entry; returns the non-zero leaves."""
+    nonzero = 0
+    for (path, want), have in zip(jax.tree_util.tree_leaves_with_path(expected), jax.tree_util.tree_leaves(got)):
+        scale = float(jnp.max(jnp.abs(want), initial=0.0))
+        assert bool(jnp.all(jnp.isfinite(have))), jax.tree_util.keystr(path)
+        np.testing.assert_allclose(have, want, rtol=0, atol=1e-9 * max(scale, 1e-300),
                                    err_msg=jax.tree_util.keystr(path))
-        compared += scale > 0
+        nonzero += scale > 0
+    return nonzero
+
+
+def test_gradients_equal_autodiffs(case):
     # mass, inertia, gravity, dt, force, torque; pos, vel, angvel, quat, time; the applied loads.
-    assert compared >= 11
+    assert assert_same_gradients(case["autodiff"], case["adjoint"]) >= 11
 
 
 def test_states_are_bit_for_bit_the_rollouts(case):
@@ -100,8 +104,7 @@ def test_vmapped_gradient_equals_autodiffs():
             return jnp.sum(per_world)
         return jax.jit(jax.grad(value))(params)
 
-    for expected, got in zip(jax.tree_util.tree_leaves(batch_loss(False)), jax.tree_util.tree_leaves(batch_loss(True))):
-        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * max(float(jnp.max(jnp.abs(expected), initial=0.0)), 1e-300))
+    assert assert_same_gradients(batch_loss(False), batch_loss(True)) >= 5
 
 
 def test_gradient_is_finite_at_rest():
@@ -114,10 +117,7 @@ def test_gradient_is_finite_at_rest():
     def gradient(adjoint):
         return jax.jit(jax.grad(lambda p: loss(rb.rollout(step, state, p, NUM_STEPS, adjoint=adjoint))))(params)
 
-    expected, got = gradient(False), gradient(True)
-    for a, b in zip(jax.tree_util.tree_leaves(expected), jax.tree_util.tree_leaves(got)):
-        assert bool(jnp.all(jnp.isfinite(b)))
-        np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
+    assert_same_gradients(gradient(False), gradient(True))
 
 
 def test_forward_mode_is_refused():

@@ -121,7 +121,10 @@ def make_loss(step: Callable, num_steps: int, method: str = "autodiff", batch: i
 
 
 def build(name: str, dtype="float32", batch: int = 1):
-    """``(step, params, state)`` of scene ``name`` from :data:`SCENES`; ``batch`` > 1 stacks that many copies of the state."""
+    """``(step, params, state)`` of scene ``name`` from :data:`SCENES`.
+
+    ``batch`` > 1 stacks that many copies of the state (leading axis).
+    """
     if name not in SCENES:
         raise ValueError(f"gradients: unknown scene {name!r}; valid scenes are: {', '.join(SCENES)}")
     factory, _, settings = SCENES[name]
