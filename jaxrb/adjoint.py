@@ -101,14 +101,12 @@ def _normalize_adjoint(y, g_out):
     return tuple(jnp.where(nonzero, inv_norm * (g - radial * e), 0.0) for g, e in zip(g_out, unit))
 
 
-def _exp_adjoint(rotvec, g_turn):
+def _exp_adjoint(rotvec, theta_sq, cos_half, sinc_half, g_turn):
     """Cotangent of the rotation vector from that of (cos θ/2, sinc·rotvec), as ``_half_angle_terms`` computes them.
 
     d cos(θ/2)/dθ² = −sinc/4 and d(sin(θ/2)/θ)/dθ² = (cos(θ/2) − 2 sinc)/(4θ²),
     with the derivatives of the forward's series below θ² = 1e-8.
     """
-    theta_sq = vec.dot(rotvec, rotvec)
-    cos_half, sinc_half = quat_ops._half_angle_terms(theta_sq)
     small = theta_sq < 1e-8
     safe_sq = jnp.where(small, 1.0, theta_sq)
     d_cos = jnp.where(small, -1.0 / 8.0 + theta_sq / 192.0, -0.25 * sinc_half)
@@ -131,11 +129,12 @@ def _first_order_adjoint(q, angvel, h, g_out):
 def _exp_map_adjoint(q, angvel, h, g_out):
     """Cotangents (g_q, g_angvel, g_h) of ``quaternion.integrate_exp_map_parts``."""
     rotvec = vec.along(h, angvel)
-    cos_half, sinc_half = quat_ops._half_angle_terms(vec.dot(rotvec, rotvec))
+    theta_sq = vec.dot(rotvec, rotvec)
+    cos_half, sinc_half = quat_ops._half_angle_terms(theta_sq)
     turn = (cos_half,) + vec.along(sinc_half, rotvec)
     g_y = _normalize_adjoint(quat_ops.multiply_parts(turn, q), g_out)
     g_turn, g_q = _multiply_adjoint(turn, q, g_y)
-    g_rotvec = _exp_adjoint(rotvec, g_turn)
+    g_rotvec = _exp_adjoint(rotvec, theta_sq, cos_half, sinc_half, g_turn)
     return g_q, vec.along(h, g_rotvec), vec.dot(g_rotvec, angvel)
 
 
