@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb import components as vec, quaternion as quat_ops
+from jaxrb.compile import full_precision
 from jaxrb.dynamics import net_wrench
 from jaxrb.math import unstack
 from jaxrb.types import Model, Params, State, Wrench
@@ -269,8 +270,7 @@ def _parameter_cotangents(model: Model, params: Params, applied: Optional[Wrench
     """
     def outer_sum(stacked):
         # (T, substeps, 6, n) -> (n, 3, 3): Σ over steps and substeps of outer(first 3, last 3).
-        return jnp.einsum("tsin,tsjn->nij", stacked[:, :, :3], stacked[:, :, 3:],
-                          precision=jax.lax.Precision.HIGHEST)  # no TF32 on GPUs (jaxrb.compile)
+        return jnp.einsum("tsin,tsjn->nij", stacked[:, :, :3], stacked[:, :, 3:])
 
     loads = jnp.sum(pieces["loads"], axis=1)                # (T, 6, n)
     g_accel = jnp.moveaxis(loads[:, :3], 1, 2)              # (T, n, 3)
@@ -374,5 +374,6 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
                                 **{name: jnp.stack(parts, -1) for name, parts in zip(_STATE_VECTORS, g_first)})
         return g_params, g_state, g_applied
 
-    run.defvjp(run_forward, run_backward)
+    # The backward pass's products at full precision, as make_step's (no TF32 on GPUs).
+    run.defvjp(run_forward, full_precision(run_backward))
     return run(params, state, applied)
