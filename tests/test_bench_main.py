@@ -27,3 +27,20 @@ def test_every_section_has_a_runner_and_a_settings_line(monkeypatch, tmp_path):
 def test_unknown_section_is_refused():
     with pytest.raises(SystemExit):
         bench_main.main(["--only", "nonsense"])
+
+
+def test_machine_info_reads_the_first_processor_and_its_vector_units(tmp_path):
+    from jaxrb.bench import report
+
+    text = ("processor\t: 0\nmodel name\t: Test CPU\ncpu MHz\t\t: 2445.406\ncache size\t: 512 KB\n"
+            "flags\t\t: fpu sse4_2 avx avx2 fma\n\nprocessor\t: 1\nmodel name\t: Other CPU\n"
+            "flags\t\t: avx512f\n")
+    (tmp_path / "cpuinfo").write_text(text)
+    fields = report.cpuinfo(str(tmp_path / "cpuinfo"))
+    assert fields["model name"] == "Test CPU" and fields["cpu MHz"] == "2445.406"
+    assert "avx512f" not in fields["flags"].split()
+    assert report.cpuinfo(str(tmp_path / "missing")) == {}
+    info = report.machine_info()
+    assert {"cpu MHz, cache", "cpu vector extensions"} <= set(info)
+    assert all(word in report.VECTOR_FLAGS for word in info["cpu vector extensions"].split()) \
+        or info["cpu vector extensions"] == "(none listed)"

@@ -98,6 +98,25 @@ def fmt_step(h: float) -> str:
     return f"{h:g}"
 
 
+#: The ``/proc/cpuinfo`` flags :func:`machine_info` reports: the vector units XLA's CPU code can use.
+VECTOR_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512vl", "avx512_bf16", "amx_tile")
+
+
+def cpuinfo(path: str = "/proc/cpuinfo") -> dict:
+    """The first processor's fields in ``path`` (name -> text); empty where there is no such file."""
+    fields = {}
+    try:
+        with open(path) as handle:
+            for text in handle:
+                if not text.strip():
+                    break  # the first processor's block ends at a blank line
+                name, _, value = text.partition(":")
+                fields[name.strip()] = value.strip()
+    except OSError:
+        pass
+    return fields
+
+
 def machine_info() -> dict:
     """Facts about the machine and software the benchmark ran on."""
     devices = jax.devices()
@@ -110,15 +129,12 @@ def machine_info() -> dict:
         affinity = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover
         affinity = None
-    processor = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as handle:
-            for text in handle:
-                if text.startswith("model name"):
-                    processor = text.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    cpu = cpuinfo()
+    processor = cpu.get("model name", platform.processor() or platform.machine())
+    # Two hosts that both call themselves "AMD EPYC" ran the same commit's box
+    # drop at 11.3 M and 3.9 M body-steps/s (docs/performance.md, section 13):
+    # the clock and vector units are what tell such hosts apart.
+    extensions = " ".join(flag for flag in VECTOR_FLAGS if flag in cpu.get("flags", "").split())
     try:
         load = "{:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
     except (AttributeError, OSError):  # pragma: no cover
@@ -128,6 +144,8 @@ def machine_info() -> dict:
         "platform": platform.platform(),
         "processor": processor,
         "cpu count": f"{os.cpu_count()}" + (f" ({affinity} usable)" if affinity else ""),
+        "cpu MHz, cache": f"{cpu.get('cpu MHz', '?')}, {cpu.get('cache size', '?')}",
+        "cpu vector extensions": extensions or "(none listed)",
         "python": sys.version.split()[0],
         "jax": jax.__version__,
         "jaxlib": jaxlib_version,
