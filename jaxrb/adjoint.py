@@ -370,6 +370,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
         init = tuple(unstack(jnp.zeros_like(getattr(first, name))) for name in _STATE_VECTORS)
         g_first, pieces = jax.lax.scan(back, init, (inputs, g_steps, applied), reverse=True)
         g_params, g_applied = _parameter_cotangents(model, params, applied, pieces, g_steps.time)
+        # The State's other fields (contact, momentum carry) are None for every model supports() accepts.
         g_state = first.replace(time=jnp.sum(g_steps.time),
                                 **{name: jnp.stack(parts, -1) for name, parts in zip(_STATE_VECTORS, g_first)})
         return g_params, g_state, g_applied

@@ -238,12 +238,12 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
     model = getattr(step, "model", None)
     if adjoint:
         _check_adjoint(model, checkpoint)
-        return hand_written.rollout(step, state, with_inverse_inertia(params, model.dim), num_steps, every,
-                                    applied)
     if model is not None:
         # Inverted once here, not in every step: reverse mode then sums the
         # inverse's cotangent over the steps and transposes the inverse once.
         params = with_inverse_inertia(params, model.dim)
+    if adjoint:
+        return hand_written.rollout(step, state, params, num_steps, every, applied)
     if applied is not None:
         applied = jax.tree_util.tree_map(
             lambda a: a.reshape((num_saved, every) + a.shape[1:]), applied)
