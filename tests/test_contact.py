@@ -225,7 +225,8 @@ def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
 
     The scene has every kind of piece: a plane group over consecutive bodies,
     a single-pair group, body–body groups whose rows are not consecutive, and
-    a plane on side B (the static row n); with a broadphase the rows are data.
+    a plane on side B (the static row n); with a broadphase the picked pairs'
+    bodies are data, read one pair at a time.
     """
     from jaxrb.collision.pairs import detect, row_summer, row_taker, static_rows
 
@@ -236,7 +237,8 @@ def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
     scene.add_body(rb.Sphere(0.1), pos=(0.1, 0.1, 0.3))
     for broadphase in ("all_pairs", "spheres"):
         model, params, state = scene.build(dt=1 / 60, broadphase=broadphase, broadphase_capacity=2)
-        assert (static_rows(model) is None) == (broadphase == "spheres")
+        picked = any(piece[0] == "picked" for side in static_rows(model) for piece in side)
+        assert picked == (broadphase == "spheres")
         contacts = jax.jit(lambda p, s: detect(model, p, s))(params, state)
         a, b = contacts.body_a, contacts.body_b
         take, add = row_taker(model, a, b), row_summer(model, a, b)
@@ -287,6 +289,47 @@ def test_broadphase_overflow_is_reported(contact):
     assert not bool(step(crowded.replace(pos=crowded.pos * 10.0), params).overflow)
     roomy, params, state = scene.build(dt=1 / 60, broadphase="spheres", broadphase_capacity=6)
     assert not bool(rb.detect_contacts(roomy, params, state).overflow)
+
+
+def test_broadphase_compaction_keeps_the_first_flagged_pairs_in_order():
+    """_first_true against numpy's nonzero: sizes around its block sizes, too few and too many flags."""
+    from jaxrb.collision.pairs import _first_true
+
+    rng = np.random.default_rng(0)
+    for count, capacity, density in ((1, 1, 1.0), (2, 5, 0.5), (7, 3, 0.9), (100, 10, 0.05), (1485, 150, 0.09)):
+        flags = rng.random(count) < density
+        indices, in_use = jax.jit(_first_true, static_argnums=1)(jnp.asarray(flags), capacity)
+        expected = np.flatnonzero(flags)[:capacity]
+        assert int(np.sum(in_use)) == len(expected) and bool(np.all(in_use[:len(expected)]))
+        np.testing.assert_array_equal(indices[:len(expected)], expected)
+        np.testing.assert_array_equal(indices[len(expected):], 0)
+
+
+@pytest.mark.parametrize("contact", MODELS)
+def test_broadphase_with_room_to_spare_counts_each_pair_once(contact):
+    """Spare broadphase slots hold no contact: the pair table's rows, each once.
+
+    The two stacked boxes are pair 0; two more stand far apart. Of the six
+    pairs the broadphase keeps one and leaves two of its three slots spare,
+    which once read as pair 0 again (tripling its penalty force). The
+    contacts and the step must match all pairs'.
+    """
+    scene = rb.Scene(dim=2)
+    scene.add_plane()
+    scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(0.0, 0.1))
+    scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(0.0, 0.295))
+    scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(5.0, 0.1))
+    scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(-5.0, 0.1))
+    built = {broadphase: scene.build(dt=1e-3, contact=contact, broadphase=broadphase, broadphase_capacity=3)
+             for broadphase in ("all_pairs", "spheres")}
+    found = {name: rb.detect_contacts(*args) for name, args in built.items()}
+    spheres, every = found["spheres"], found["all_pairs"]
+    assert not bool(spheres.overflow)
+    rows = lambda found: sorted(zip(*(np.asarray(x)[np.asarray(found.active)].tolist()
+                                      for x in (found.body_a, found.body_b, found.dist))))
+    assert rows(spheres) == rows(every) and any(b < 4 for _, b, _ in rows(every))  # a box-box row
+    stepped = {name: rb.make_step(model)(state, params) for name, (model, params, state) in built.items()}
+    np.testing.assert_allclose(stepped["spheres"].vel, stepped["all_pairs"].vel, rtol=1e-12, atol=1e-12)
 
 
 # --- transformations ----------------------------------------------------------------------
