@@ -27,6 +27,7 @@ from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
 from jaxrb.collision import box, planar, plane, round as round_kernels
 from jaxrb.collision.geometry import geometry, pair_kind
+from jaxrb.components import materialize
 from jaxrb.contact.common import relative_velocity
 from jaxrb.math import rot2, safe_norm, safe_sqrt, unstack
 from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Array, Model, Params, State
@@ -48,6 +49,11 @@ KERNELS = {
     "polygon_polygon": planar.polygon_polygon,
     "points_polygon": planar.points_polygon,
 }
+
+#: Kernels that take ``store(parts) -> parts``: written on components, they
+#: need their intermediate results computed once (see
+#: :func:`jaxrb.components.materialize`), or XLA recomputes them in every consumer.
+STORING_KERNELS = frozenset({"polygon_polygon"})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -500,7 +506,10 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
                       jnp.broadcast_to(jnp.eye(model.dim, dtype=dtype), (len(pair_ids), model.dim, model.dim)))
         else:
             pose_b = pose_of(group.body_b, body_b if picked else None)
-        found = jax.vmap(KERNELS[group.kind])(geom_a, geom_b, pose_a, pose_b)
+        kernel = KERNELS[group.kind]
+        if group.kind in STORING_KERNELS:
+            kernel = functools.partial(kernel, store=lambda parts: materialize(parts, params))
+        found = jax.vmap(kernel)(geom_a, geom_b, pose_a, pose_b)
         slots = group.slots
         mu_a, e_a = params.friction[body_a], params.restitution[body_a]
         if group.b_is_plane:

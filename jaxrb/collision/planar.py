@@ -8,18 +8,21 @@ rotation (2, 2))``; polygons are ``(vertices (k, 2), normals (k, 2))``, CCW,
 ``normals[i]`` the outward normal of edge ``i -> i+1``.
 
 Discrete choices (which edge, which polygon is the reference) are made with
-``argmax``/``argmin`` and turned into one-hot weights, so the chosen feature's
-coordinates stay differentiable and no traced value decides Python control
-flow. Under ``vmap`` everything is small elementwise math on components.
+``argmax``/``argmin`` (in ``polygon_polygon``, chains of compares over the
+vertices) and turned into one-hot weights or selects, so the chosen
+feature's coordinates stay differentiable and no traced value decides Python
+control flow. Under ``vmap`` everything is small elementwise math on components.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
 
 from jaxrb.collision.contacts import Contacts
-from jaxrb.math import dot, safe_div, safe_normalize
+from jaxrb.math import dot, safe_div, safe_normalize, safe_sqrt, unstack
 
 # Reference-face choice in polygon_polygon (Box2D's k_relativeTol/k_absoluteTol):
 # B becomes the reference only if its separation beats A's by more than
@@ -157,67 +160,112 @@ def points_polygon(geom_a, geom_b, pose_a, pose_b):
                     valid=jnp.ones(points.shape[:1], dtype=bool))
 
 
+# polygon_polygon works on components: each vertex coordinate is its own
+# array, so under vmap every operation is a wide elementwise loop over pairs.
+# On (k, 2) arrays XLA's CPU backend ran the (pairs, k, k, 2) gap tensor and
+# the argmax/argmin over k as loops over tiny minor axes: the 55-box pyramid's
+# narrowphase at 256 worlds took 7.3 ms of its 26 ms a step that way.
+
+
+def _world_directions(rotation, local):
+    """Shape-frame directions (k, 2) as k world directions, each a pair (x, y) of scalars."""
+    xs, ys = unstack(local)
+    return [(rotation[0, 0] * x + rotation[0, 1] * y, rotation[1, 0] * x + rotation[1, 1] * y)
+            for x, y in zip(unstack(xs, 0), unstack(ys, 0))]
+
+
+def _world_points(pose, local):
+    """Shape-frame points (k, 2) as k world points, each a pair (x, y) of scalars."""
+    ox, oy = unstack(pose[0])
+    return [(ox + x, oy + y) for x, y in _world_directions(pose[1], local)]
+
+
+def _dot2(a, b):
+    return a[0] * b[0] + a[1] * b[1]
+
+
+def _first_best(values, better):
+    """(index, value) of the first entry of ``values`` (scalars) that no later one is ``better`` than."""
+    index, best = jnp.zeros(jnp.shape(values[0]), jnp.int32), values[0]
+    for i, value in enumerate(values[1:], start=1):
+        wins = better(value, best)
+        index, best = jnp.where(wins, i, index), jnp.where(wins, value, best)
+    return index, best
+
+
+def _select(index, points):
+    """The point (x, y) of ``points`` at integer ``index`` (no gradient through the choice)."""
+    x, y = points[0]
+    for i, (px, py) in enumerate(points[1:], start=1):
+        chosen = index == i
+        x, y = jnp.where(chosen, px, x), jnp.where(chosen, py, y)
+    return x, y
+
+
 def _max_separation(vertices, normals, other):
-    """Box2D's b2FindMaxSeparation, all in world coordinates.
+    """Box2D's b2FindMaxSeparation on component points (world coordinates).
 
     Args:
-        vertices, normals: (k, 2) of the polygon whose edges are tried.
-        other: (m, 2) vertices of the other polygon.
+        vertices, normals: k points (x, y) of the polygon whose edges are tried.
+        other: m points (x, y) of the other polygon's vertices.
 
     Returns:
-        (edge index, separation): the edge whose normal separates most and the
-        separation along it (< 0 when overlapping).
+        (edge index, separation): the first edge whose normal separates most
+        and the separation along it (< 0 when overlapping).
     """
-    gaps = dot(other[None, :, :] - vertices[:, None, :], normals[:, None, :])  # (k, m)
-    separation = jnp.min(gaps, axis=1)
-    return jnp.argmax(separation), jnp.max(separation)
+    separations = []
+    for (vx, vy), normal in zip(vertices, normals):
+        gaps = [_dot2((ox - vx, oy - vy), normal) for ox, oy in other]
+        separations.append(functools.reduce(jnp.minimum, gaps))
+    return _first_best(separations, jnp.greater)
 
 
 def _clip(p0, p1, plane_normal, offset):
-    """Keep the part of segment p0-p1 with plane_normal·x <= offset (slot-wise).
+    """Keep the part of segment p0-p1 with plane_normal·x <= offset (points as (x, y)).
 
     Returns the two (possibly moved) endpoints and whether any part survives.
     """
-    d0 = dot(p0, plane_normal) - offset
-    d1 = dot(p1, plane_normal) - offset
+    d0 = _dot2(p0, plane_normal) - offset
+    d1 = _dot2(p1, plane_normal) - offset
     in0, in1 = d0 <= 0.0, d1 <= 0.0
     # Used only when exactly one end is inside: then d0 - d1 != 0 and the fraction is in [0, 1].
     crossing = in0 != in1
     fraction = d0 / jnp.where(crossing, d0 - d1, 1.0)
-    hit = p0 + fraction * (p1 - p0)
-    return jnp.where(in0, p0, hit), jnp.where(in1, p1, hit), in0 | in1
+    hit = tuple(a + fraction * (b - a) for a, b in zip(p0, p1))
+    return (tuple(jnp.where(in0, a, c) for a, c in zip(p0, hit)),
+            tuple(jnp.where(in1, b, c) for b, c in zip(p1, hit)), in0 | in1)
 
 
 def _clip_against_reference(ref_vertices, ref_edge, inc_vertices, inc_normals):
-    """Box2D's clipping of the incident edge against a reference edge (world coordinates).
+    """Box2D's clipping of the incident edge against a reference edge (component points).
 
     Args:
-        ref_vertices: (k, 2) vertices of the reference polygon.
+        ref_vertices: k points (x, y) of the reference polygon.
         ref_edge: index of the reference edge.
-        inc_vertices, inc_normals: (m, 2) of the incident polygon.
+        inc_vertices, inc_normals: m points (x, y) of the incident polygon.
 
     Returns:
         separation (2,), point (2, 2) midway, reference normal (2,) pointing out of
         the reference polygon, valid (2,).
     """
-    dtype = ref_vertices.dtype
-    pick = _one_hot(ref_edge, ref_vertices.shape[0], dtype)
-    v11 = _pick(pick, ref_vertices)
-    v12 = _pick(pick, jnp.roll(ref_vertices, -1, axis=0))
-    tangent = safe_normalize(v12 - v11)
-    normal = jnp.stack([tangent[1], -tangent[0]])                        # outward for CCW
-    # Incident edge: the one most anti-parallel to the reference normal.
-    incident = jnp.argmin(dot(inc_normals, normal[None]))
-    pick = _one_hot(incident, inc_vertices.shape[0], dtype)
-    p0 = _pick(pick, inc_vertices)
-    p1 = _pick(pick, jnp.roll(inc_vertices, -1, axis=0))
-    p0, p1, keep1 = _clip(p0, p1, -tangent, -dot(tangent, v11))
-    p0, p1, keep2 = _clip(p0, p1, tangent, dot(tangent, v12))
-    clipped = jnp.stack([p0, p1])                                        # (2, 2)
-    separation = dot(clipped, normal[None]) - dot(normal, v11)
-    point = clipped - (0.5 * separation)[:, None] * normal
+    v11 = _select(ref_edge, ref_vertices)
+    v12 = _select(ref_edge, ref_vertices[1:] + ref_vertices[:1])
+    edge = (v12[0] - v11[0], v12[1] - v11[1])
+    length = safe_sqrt(edge[0] * edge[0] + edge[1] * edge[1])
+    nonzero = length > 0.0
+    tangent = tuple(jnp.where(nonzero, e / jnp.where(nonzero, length, 1.0), 0.0) for e in edge)
+    normal = (tangent[1], -tangent[0])                                  # outward for CCW
+    # Incident edge: the first one most anti-parallel to the reference normal.
+    incident, _ = _first_best([_dot2(n, normal) for n in inc_normals], jnp.less)
+    p0 = _select(incident, inc_vertices)
+    p1 = _select(incident, inc_vertices[1:] + inc_vertices[:1])
+    p0, p1, keep1 = _clip(p0, p1, (-tangent[0], -tangent[1]), -_dot2(tangent, v11))
+    p0, p1, keep2 = _clip(p0, p1, tangent, _dot2(tangent, v12))
+    separation = jnp.stack([_dot2(p, normal) - _dot2(normal, v11) for p in (p0, p1)])
+    clipped = jnp.stack([jnp.stack(p0), jnp.stack(p1)])                 # (2, 2)
+    point = clipped - (0.5 * separation)[:, None] * jnp.stack(normal)
     valid = jnp.broadcast_to(keep1 & keep2, (2,))
-    return separation, point, normal, valid
+    return separation, point, jnp.stack(normal), valid
 
 
 def _size(vertices):
@@ -226,7 +274,7 @@ def _size(vertices):
     return jnp.sqrt(jnp.max(dot(centred, centred)))
 
 
-def polygon_polygon(geom_a, geom_b, pose_a, pose_b):
+def polygon_polygon(geom_a, geom_b, pose_a, pose_b, store=lambda parts: parts):
     """Convex polygon A against convex polygon B: 2 contacts (Box2D's clipping).
 
     Both polygons' edge normals are tried as separating axes; the polygon with
@@ -241,16 +289,22 @@ def polygon_polygon(geom_a, geom_b, pose_a, pose_b):
     Args:
         geom_a, geom_b: (vertices (k, 2), normals (k, 2)); k may differ.
         pose_a, pose_b: (origin (2,), rotation (2, 2)).
+        store: ``parts -> parts``, the same values computed once
+            (:func:`jaxrb.collision.pairs.detect` passes
+            :func:`jaxrb.components.materialize`): the separations and the
+            results, each read by many consumers that XLA would otherwise
+            fuse the whole chain into.
 
     Returns:
         Contacts with K = 2, normal from B to A.
     """
-    vertices_a = _to_world(pose_a, geom_a[0])
-    normals_a = _rotate(pose_a[1], geom_a[1])
-    vertices_b = _to_world(pose_b, geom_b[0])
-    normals_b = _rotate(pose_b[1], geom_b[1])
+    vertices_a = _world_points(pose_a, geom_a[0])
+    normals_a = _world_directions(pose_a[1], geom_a[1])
+    vertices_b = _world_points(pose_b, geom_b[0])
+    normals_b = _world_directions(pose_b[1], geom_b[1])
     edge_a, sep_a = _max_separation(vertices_a, normals_a, vertices_b)
     edge_b, sep_b = _max_separation(vertices_b, normals_b, vertices_a)
+    edge_a, sep_a, edge_b, sep_b = store((edge_a, sep_a, edge_b, sep_b))
     size = jnp.minimum(_size(geom_a[0]), _size(geom_b[0]))
     reference_b = sep_b > sep_a + REL_TOL * jnp.abs(sep_a) + ABS_TOL * size
 
@@ -261,7 +315,7 @@ def polygon_polygon(geom_a, geom_b, pose_a, pose_b):
     sep_rb, point_rb, normal_rb, valid_rb = _clip_against_reference(
         vertices_b, edge_b, vertices_a, normals_a)
     normal = jnp.where(reference_b, normal_rb, -normal_ra)              # B -> A either way
-    return Contacts(dist=jnp.where(reference_b, sep_rb, sep_ra),
-                    normal=jnp.broadcast_to(normal, (2, 2)),
-                    point=jnp.where(reference_b, point_rb, point_ra),
-                    valid=jnp.where(reference_b, valid_rb, valid_ra))
+    dist, normal, point, valid = store((jnp.where(reference_b, sep_rb, sep_ra), normal,
+                                        jnp.where(reference_b, point_rb, point_ra),
+                                        jnp.where(reference_b, valid_rb, valid_ra)))
+    return Contacts(dist=dist, normal=jnp.broadcast_to(normal, (2, 2)), point=point, valid=valid)
