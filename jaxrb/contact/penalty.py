@@ -51,6 +51,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxrb.collision.pairs import row_summer, row_taker
+from jaxrb.components import materialize
 from jaxrb.contact.common import (clamp_to_disc, effective_mass, moment,
                                   relative_velocity, world_inverse_inertia)
 from jaxrb.math import safe_norm, safe_normalize
@@ -164,6 +165,9 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         held_friction = friction_force
 
     force = normal_force[:, None] * normal + friction_force
+    # Stored once: each of the four per-body sums below would otherwise
+    # re-derive the whole contact law (XLA fuses a producer into every consumer).
+    force, normal_force, held_friction = materialize((force, normal_force, held_friction), params)
     body_force = add(force, 0) - add(force, 1)
     body_torque = add(moment(model, arm_a, force), 0) - add(moment(model, arm_b, force), 1)
     return body_force, body_torque, normal_force, held_friction
