@@ -124,7 +124,10 @@ DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse",
 #: at h = 1 ms this spring's top box drifted 2–24 mm in 1 s and the default's up
 #: to 5 mm from 0.1 mm offsets: the explicit spring is too fast for the rocking
 #: of a box on its corners. At h = 0.5 ms it drifted ≤ 0.09 mm and sank
-#: ≤ 1.66 mm over 5 s; twice this stiffness at 0.5 ms drifted 36 mm.
+#: ≤ 1.66 mm over 5 s; twice this stiffness at 0.5 ms drifted 36 mm. Those
+#: figures counted the bottom pair four times (a broadphase bug, fixed in
+#: bc4616e); counted once it sinks 1.90 mm and drifts 0.21 mm
+#: (docs/performance.md section 15).
 STACK_PENALTY_STEP = 5e-4  # s
 STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz
 #: jaxrb's settings for the standing scenes, by contact model and scene: (dt,
