@@ -29,7 +29,7 @@ from jaxrb.collision import box, planar, plane, round as round_kernels
 from jaxrb.collision.geometry import geometry, pair_kind
 from jaxrb.components import materialize
 from jaxrb.contact.common import relative_velocity
-from jaxrb.math import rot2, safe_norm, safe_sqrt, unstack
+from jaxrb.math import rot2, safe_sqrt, unstack
 from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Array, Model, Params, State
 
 KERNELS = {
