@@ -5,6 +5,7 @@ impulse at h = 1/60 s with 4 substeps unless a test says otherwise; penalty at
 h = 1 ms (its default spring is 0.03/h Hz, stable for symplectic Euler).
 """
 
+import functools
 import math
 
 import jax
@@ -320,15 +321,17 @@ def test_broadphase_with_room_to_spare_counts_each_pair_once(contact):
     scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(0.0, 0.295))
     scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(5.0, 0.1))
     scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(-5.0, 0.1))
-    built = {broadphase: scene.build(dt=1e-3, contact=contact, broadphase=broadphase, broadphase_capacity=3)
+    built = {broadphase: scene.build(dt=1e-3, substeps=1, contact=contact, broadphase=broadphase,
+                                     broadphase_capacity=3)
              for broadphase in ("all_pairs", "spheres")}
-    found = {name: rb.detect_contacts(*args) for name, args in built.items()}
+    found = {name: jax.jit(functools.partial(rb.detect_contacts, model))(params, state)
+             for name, (model, params, state) in built.items()}
     spheres, every = found["spheres"], found["all_pairs"]
     assert not bool(spheres.overflow)
     rows = lambda found: sorted(zip(*(np.asarray(x)[np.asarray(found.active)].tolist()
                                       for x in (found.body_a, found.body_b, found.dist))))
     assert rows(spheres) == rows(every) and any(b < 4 for _, b, _ in rows(every))  # a box-box row
-    stepped = {name: rb.make_step(model)(state, params) for name, (model, params, state) in built.items()}
+    stepped = {name: jax.jit(rb.make_step(model))(state, params) for name, (model, params, state) in built.items()}
     np.testing.assert_allclose(stepped["spheres"].vel, stepped["all_pairs"].vel, rtol=1e-12, atol=1e-12)
 
 
