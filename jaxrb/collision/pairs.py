@@ -306,6 +306,12 @@ def take_rows(array, pieces, static_row=None, rows=None):
     return parts[0] if len(parts) == 1 else jnp.concatenate(parts)
 
 
+def body_rows(bodies, *arrays):
+    """Each (n, ...) array's rows for the static ``bodies`` (k,), by slices and broadcasts where they allow."""
+    piece = (_bodies_piece(bodies, 1),)
+    return tuple(take_rows(array, piece) for array in arrays)
+
+
 def sum_rows(values, pieces, num_rows, rows=None):
     """Per-body sums of per-row ``values``: the transpose of :func:`take_rows`.
 
@@ -405,9 +411,8 @@ def _near_pairs(model: Model, params: Params, state: State, origin, group: PairG
     sides = []
     for bodies in (group.body_a, group.body_b):
         rows = np.unique(bodies)
-        piece = (_bodies_piece(rows, 1),)
         radius = jnp.asarray([bounding_radius(*geometry(model.shapes[b], model.dim)) for b in rows], dtype=dtype)
-        sides.append((rows, take_rows(origin, piece), take_rows(state.vel, piece), radius))
+        sides.append((rows, *body_rows(rows, origin, state.vel), radius))
     (rows_a, origin_a, vel_a, radius_a), (rows_b, origin_b, vel_b, radius_b) = sides
 
     def distances(points_a, points_b):
@@ -476,8 +481,7 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
         """
         if traced is not None:
             return origin[traced], rotation[traced]
-        piece = (_bodies_piece(bodies, 1),)
-        return take_rows(origin, piece), take_rows(rotation, piece)
+        return body_rows(bodies, origin, rotation)
 
     num = model.num_bodies
     parts, overflow = [], jnp.zeros((), dtype=bool)
