@@ -130,6 +130,26 @@ def test_fronts_are_per_panel_and_levels_read_the_front():
     assert chosen == {"all": [0, 1, 2, 3, 4], "pareto": [0, 1, 4], "cheapest": [0, 4], "none": []}
 
 
+
+def _visible_tick_labels(axis, low, high):
+    return [label.get_text() for label in axis.get_ticklabels()
+            if label.get_text() and low <= label.get_position()[axis.axis_name == "y"] <= high]
+
+
+def test_speed_error_plot_labels_an_axis_shorter_than_a_decade():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from jaxrb.bench.pareto import plot_speed_vs_error
+
+    figure, ax = plt.subplots()
+    plot_speed_vs_error(ax, [1.3e-4, 2.5e-4, 8.5e-4], [1e-4, 1e-2, 1e-1], ["a", "b", "c"], ["g", "g", "g"])
+    figure.canvas.draw()
+    # costs within one decade: at least two numbers on the x axis; errors span three powers of ten
+    assert len(_visible_tick_labels(ax.xaxis, *ax.get_xlim())) >= 2
+    assert len(_visible_tick_labels(ax.yaxis, *ax.get_ylim())) >= 2
+    plt.close(figure)
+
 # --- the error metrics against exact answers ----------------------------------------------
 
 def test_hermite_crossing_is_fourth_order_accurate():

@@ -57,5 +57,25 @@ def plot_speed_vs_error(ax, costs: Sequence[float], errors: Sequence[float], lab
     order = np.argsort(costs[front])
     ax.plot(costs[front][order], errors[front][order], "k--", lw=0.8, label="Pareto front", zorder=2)
     ax.set(xscale="log", yscale="log", xlabel=xlabel, ylabel=ylabel, title=title)
+    label_short_log_axes(ax)
     ax.legend(fontsize=8)
     return ax
+
+
+def label_short_log_axes(ax):
+    """Number both log axes of ``ax`` at its major ticks only, at 1, 2 and 5 per decade where an axis is short.
+
+    Matplotlib numbers only the powers of ten on a log axis, so costs that all
+    fell between 1.2e-4 and 9e-4 left the axis with no number on it; its
+    minor-tick labels, shown on axes spanning about a decade, collide.
+    """
+    from matplotlib import ticker
+
+    for axis, (low, high) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+        axis.set_minor_formatter(ticker.NullFormatter())
+        powers_inside = np.floor(np.log10(high)) - np.ceil(np.log10(low)) + 1
+        if powers_inside < 2:
+            axis.set_major_locator(ticker.LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+            # (its default thresholds would label only some of 1, 2 and 5 on a short axis)
+            axis.set_major_formatter(ticker.LogFormatterSciNotation(labelOnlyBase=False,
+                                                                    minor_thresholds=(np.inf, np.inf)))

@@ -945,7 +945,6 @@ def plot_scene(points: Sequence[Point], path: str) -> str:
         ``path``.
     """
     from matplotlib.figure import Figure
-    from matplotlib.ticker import NullFormatter
 
     scene = points[0].scene
     title, error_name, unit, _ = SCENE_TEXT[scene]
@@ -960,8 +959,6 @@ def plot_scene(points: Sequence[Point], path: str) -> str:
                             ylabel=f"{error_name}{' (' + unit.strip() + ')' if unit else ''}",
                             title=title + ("" if panel == "all" else f" — {panel}"))
         axis.grid(True, which="both", alpha=0.3)
-        # Minor-tick labels of a log axis spanning under two decades collide.
-        axis.xaxis.set_minor_formatter(NullFormatter())
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     return path
