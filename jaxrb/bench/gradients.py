@@ -25,7 +25,7 @@ each step's input) and one with them.
 
 **Time**: compile time apart; run = median of repeated calls with
 ``block_until_ready`` (:mod:`jaxrb.bench.timing`) of the forward loss and of
-its gradient, both over the same T steps. The ratio grad / forward is the
+its gradient, both over the same T steps, called in turn. The ratio grad / forward is the
 "cheap gradient" figure (target ≤ 3×; checkpointing adds about one more
 forward pass). Timed at one world, and for scenes with a hand-written
 adjoint also at ``gradient_batch`` worlds (``vmap`` over the initial
@@ -47,7 +47,7 @@ import jax.numpy as jnp
 import jaxrb as rb
 from jaxrb import adjoint
 from jaxrb.bench.report import fmt_fixed, markdown_table
-from jaxrb.bench.timing import compile_jitted, time_compiled
+from jaxrb.bench.timing import compile_jitted, time_alternated
 from jaxrb.step import _segment_length
 
 
@@ -170,8 +170,10 @@ def gradient_time(name: str, num_steps: int, repeats: int = 5, dtype="float32",
                   budget_s: float = 5.0, log=None) -> list:
     """Time the forward loss and its gradient over ``num_steps`` steps.
 
-    Each function gets one warm-up call and up to ``repeats`` timed calls,
-    fewer (but at least 3) once ``budget_s`` seconds of timed calls are spent.
+    For each method the forward and the gradient are timed in turn, call by
+    call (:func:`jaxrb.bench.timing.time_alternated`): one warm-up round and
+    up to ``repeats`` timed rounds, fewer (but at least 3) once ``budget_s``
+    seconds of timed calls are spent. So each row's forward time is its own.
     Methods the scene has no adjoint for are skipped (:func:`methods_for`).
 
     Every gradient compiled here at one world also yields its memory row, so
@@ -187,14 +189,14 @@ def gradient_time(name: str, num_steps: int, repeats: int = 5, dtype="float32",
     log = log or (lambda text: None)
     step, params, state = build(name, dtype, batch)
     forward, forward_compile_s = compile_jitted(make_loss(step, num_steps, batch=batch), params, state)
-    forward_s, _, value = time_compiled(forward, params, state, repeats=repeats, budget_s=budget_s)
-    if not bool(jnp.isfinite(value)):
-        raise FloatingPointError(f"gradients bench {name}: non-finite loss {value}")
     forward_temp = int(forward.memory_analysis().temp_size_in_bytes)
     times, memories = [], []
     for method in methods_for(step, methods):
         grad, grad_compile_s = compile_jitted(jax.grad(make_loss(step, num_steps, method, batch)), params, state)
-        grad_s, _, gradient = time_compiled(grad, params, state, repeats=repeats, budget_s=budget_s)
+        (forward_s, _, value), (grad_s, _, gradient) = time_alternated(
+            (forward, grad), params, state, repeats=repeats, budget_s=budget_s)
+        if not bool(jnp.isfinite(value)):
+            raise FloatingPointError(f"gradients bench {name}: non-finite loss {value}")
         if not all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(gradient)):
             raise FloatingPointError(f"gradients bench {name}: non-finite gradient ({method})")
         times.append(dict(kind="time", scene=name, batch=batch, num_steps=num_steps, method=method,
@@ -317,7 +319,8 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         f"{settings['gradient_dtype']}; `jax.grad` with respect to all Params of the mean squared state over "
         "the whole rollout (`rb.rollout`, every step kept). *grad / forward*: median run time of the "
         f"jitted gradient over that of the jitted forward loss, T = {settings['gradient_time_steps']} "
-        "(target ≤ 3×). *method*: `autodiff` is `rb.rollout`'s reverse mode, `checkpoint` the same "
+        "(target ≤ 3×), the two called in turn so they share the host's fast and slow spells (each "
+        "row times its own forward). *method*: `autodiff` is `rb.rollout`'s reverse mode, `checkpoint` the same "
         "with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
         "adjoint of 3D semi-implicit free bodies (`jaxrb.adjoint`; none for contact). *batch*: worlds "
         "(`vmap` over the initial state, Params shared, the loss their mean). *temp memory*: "

@@ -8,7 +8,9 @@ different reports can be compared:
   is what a notebook user waits for on the first call.
 * **run**: wall seconds of one call of the compiled executable, waited on with
   ``jax.block_until_ready``. One untimed warm-up call comes first; the reported
-  figure is the median of the timed calls.
+  figure is the median of the timed calls. Functions whose ratio is the
+  figure (a gradient against its forward) are timed in turn, call by call
+  (:func:`time_alternated`).
 
 Example::
 
@@ -82,20 +84,44 @@ def time_compiled(compiled: Callable, *args, repeats: int = 5, min_repeats: int 
     Returns:
         ``(median_s, runs_s, last_output)``.
     """
-    output = None
+    return time_alternated((compiled,), *args, repeats=repeats, min_repeats=min_repeats,
+                           budget_s=budget_s, warmup=warmup)[0]
+
+
+def time_alternated(functions: Sequence[Callable], *args, repeats: int = 5, min_repeats: int = 3,
+                    budget_s: float | None = None, warmup: int = 1) -> list:
+    """Time several functions of the same arguments call by call in turn, as :func:`time_compiled` times one.
+
+    Each round calls every function once, in order. On a shared host whose
+    speed drifts over seconds, functions timed one after the other can land
+    in a fast and a slow spell, and their ratio with them; taken in turn,
+    they share the spells.
+
+    Args:
+        functions: compiled (or jitted) functions, each called as ``f(*args)``.
+        args: their arguments.
+        repeats: rounds at most; min_repeats, budget_s (summed over every
+            function's calls), warmup (untimed rounds first): as in
+            :func:`time_compiled`.
+
+    Returns:
+        One ``(median_s, runs_s, last_output)`` per function, in order.
+    """
+    outputs = [None] * len(functions)
     for _ in range(warmup):
-        output = jax.block_until_ready(compiled(*args))
-    runs = []
+        outputs = [jax.block_until_ready(function(*args)) for function in functions]
+    runs = [[] for _ in functions]
     spent = 0.0
     for index in range(max(1, repeats)):
-        start = time.perf_counter()
-        output = jax.block_until_ready(compiled(*args))
-        elapsed = time.perf_counter() - start
-        runs.append(elapsed)
-        spent += elapsed
+        for position, function in enumerate(functions):
+            start = time.perf_counter()
+            outputs[position] = jax.block_until_ready(function(*args))
+            elapsed = time.perf_counter() - start
+            runs[position].append(elapsed)
+            spent += elapsed
         if budget_s is not None and spent > budget_s and index + 1 >= min_repeats:
             break
-    return statistics.median(runs), tuple(runs), output
+    return [(statistics.median(times), tuple(times), output) for times, output in zip(runs, outputs)]
 
 
 def time_jitted(fn: Callable, *args, repeats: int = 5, min_repeats: int = 3,
