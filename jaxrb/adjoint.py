@@ -14,9 +14,9 @@ adjoint of the 3D semi-implicit free-body step by hand:
 * the backward loop recomputes one step's intermediates from its input
   State, then applies the chain rule on components; the values many
   cotangents share are computed once (``components.materialize``);
-* the parameters' cotangents leave the loop as a few stacked per-step
-  factors and are summed over all steps at once afterwards, so the loop
-  carries only the state's cotangent.
+* the parameters' cotangents are summed in the loop's carry (25 numbers
+  a body), except applied loads', which leave the loop stacked (6 a body a
+  step) because applied loads change from step to step.
 
 What it covers (:func:`supports`): 3D bodies, integrator ``semi_implicit``
 (either orientation update), no contact and no damping; any number of
@@ -187,13 +187,13 @@ def _substep_adjoint(orientation, inertia, inv_inertia, accel, h, saved, g_out, 
         keep: stores a tuple of parts once for all its users.
 
     Returns:
-        (g_state, pieces): g_state the cotangents of (pos, vel, quat, angvel)
-        before the substep; pieces a dict of stacked arrays (components on
-        axis 0, at most 8 to a stack: XLA fuses a longer concatenation part
-        by part) that :func:`_parameter_cotangents` sums after the loop:
-        ``inv_inertia`` and ``spin`` (the inverse inertia's outer-product
-        factors), ``inertia`` (the inertia's), ``loads`` (g_accel, g_torque)
-        and ``h`` (n,).
+        (g_state, sums, loads): g_state the cotangents of (pos, vel, quat,
+        angvel) before the substep; sums a dict of this substep's terms of
+        the parameters' cotangents, which the backward loop accumulates in
+        its carry: ``inv_inertia`` and ``inertia`` (9-tuples, the (i, j)
+        entries row by row, each (n,)) and ``h`` (n,); loads (6, n): the
+        cotangents of the acceleration (times h) and of the torque, kept per
+        step because applied loads change from step to step.
     """
     g_pos1, g_vel1, g_quat1, g_angvel2 = g_out
     s = saved
@@ -214,10 +214,15 @@ def _substep_adjoint(orientation, inertia, inv_inertia, accel, h, saved, g_out, 
     g_quat_t, g_torque = _rotate_inverse(s["quat"], s["torque_body"],
                                          vec.matvec_transposed(inv_inertia, g_spin_body), keep)
     g_quat = tuple(sum(parts) for parts in zip(g_quat, g_quat_m, g_quat_b, g_quat_s, g_quat_t))
-    pieces = dict(inv_inertia=jnp.stack(g_body1 + s["change"]), spin=jnp.stack(g_spin_body + s["torque_body"]),
-                  inertia=jnp.stack(g_body_momentum + s["body"]),
-                  loads=jnp.stack(vec.along(h, g_vel1) + g_torque), h=g_h)
-    return (g_pos1, g_vel1, g_quat, g_angvel1), pieces
+    sums = dict(inv_inertia=tuple(a + b for a, b in zip(_outer(g_body1, s["change"]),
+                                                        _outer(g_spin_body, s["torque_body"]))),
+                inertia=_outer(g_body_momentum, s["body"]), h=g_h)
+    return (g_pos1, g_vel1, g_quat, g_angvel1), sums, jnp.stack(vec.along(h, g_vel1) + g_torque)
+
+
+def _outer(a, b):
+    """The outer product a bᵀ of two component vectors, as a 9-tuple of its entries row by row."""
+    return tuple(x * y for x in a for y in b)
 
 
 # ---------------------------------------------------------------- one step
@@ -234,8 +239,9 @@ def _step_adjoint(model: Model, params: Params, state: State, applied: Optional[
         keep: as for :func:`_substep_adjoint`.
 
     Returns:
-        (g_before, pieces): g_before like g_after for the input State; pieces
-        the :func:`_substep_adjoint` pieces with a leading substep axis.
+        (g_before, sums, loads): g_before like g_after for the input State;
+        sums and loads the :func:`_substep_adjoint` ones summed over the
+        step's substeps.
     """
     force, torque = net_wrench(model, params, applied)
     accel, torque = unstack(force / params.mass[:, None]), unstack(torque)
@@ -247,32 +253,35 @@ def _step_adjoint(model: Model, params: Params, state: State, applied: Optional[
         values, intermediates = _substep_values(model.orientation, inertia, inv_inertia, *values, accel,
                                                 torque, h)
         saved.append(intermediates)
-    g_state, pieces = g_after, []
+    g_state, sums, loads = g_after, None, None
     for intermediates in reversed(saved):
-        g_state, substep_pieces = _substep_adjoint(model.orientation, inertia, inv_inertia, accel, h,
-                                                   intermediates, g_state, keep)
-        pieces.insert(0, substep_pieces)
-    return g_state, jax.tree_util.tree_map(lambda *per_substep: jnp.stack(per_substep), *pieces)
+        g_state, substep_sums, substep_loads = _substep_adjoint(model.orientation, inertia, inv_inertia, accel,
+                                                                h, intermediates, g_state, keep)
+        sums, loads = ((substep_sums, substep_loads) if sums is None else
+                       (jax.tree_util.tree_map(jnp.add, sums, substep_sums), loads + substep_loads))
+    return g_state, sums, loads
 
 
-def _parameter_cotangents(model: Model, params: Params, applied: Optional[Wrench], pieces, g_times):
-    """The Params' (and applied loads') cotangents: every step's pieces summed at once.
+def _parameter_cotangents(model: Model, params: Params, applied: Optional[Wrench], sums, loads, g_times):
+    """The Params' (and applied loads') cotangents from the backward loop's sums and per-step loads.
 
     Args:
         model, params: as for :func:`_step_adjoint`.
         applied: None or the Wrench of every step, leading axis T.
-        pieces: :func:`_step_adjoint`'s pieces of every step, leading axes (T, substeps).
+        sums: :func:`_step_adjoint`'s sums, accumulated over every step.
+        loads: (T, 6, n) :func:`_step_adjoint`'s loads of every step, or
+            (1, 6, n) their sum when ``applied`` is None (the loads are then
+            the same at every step, and each cotangent is linear in them).
         g_times: (T,) cotangent of each step's output time.
 
     Returns:
         (g_params, g_applied): Params of cotangents (zero where the step does
         not read the field) and the Wrench of cotangents, leading axis T (or None).
     """
-    def outer_sum(stacked):
-        # (T, substeps, 6, n) -> (n, 3, 3): Σ over steps and substeps of outer(first 3, last 3).
-        return jnp.einsum("tsin,tsjn->nij", stacked[:, :, :3], stacked[:, :, 3:])
+    def matrices(entries):
+        # 9-tuple of (n,), row by row -> (n, 3, 3)
+        return jnp.stack(entries, -1).reshape(entries[0].shape + (3, 3))
 
-    loads = jnp.sum(pieces["loads"], axis=1)                # (T, 6, n)
     g_accel = jnp.moveaxis(loads[:, :3], 1, 2)              # (T, n, 3)
     g_torque = jnp.moveaxis(loads[:, 3:], 1, 2)
     force, _ = net_wrench(model, params, applied)           # (n, 3), or (T, n, 3) with applied loads
@@ -281,12 +290,11 @@ def _parameter_cotangents(model: Model, params: Params, applied: Optional[Wrench
               - jnp.sum(g_accel * force, axis=(0, 2)) / params.mass ** 2)
     # Step t's output time is t + 1 steps of dt after the start.
     steps_done = jnp.arange(1, g_times.shape[0] + 1, dtype=g_times.dtype)
-    g_dt = jnp.sum(pieces["h"]) / model.substeps + jnp.sum(g_times * steps_done)
+    g_dt = jnp.sum(sums["h"]) / model.substeps + jnp.sum(g_times * steps_done)
     g_params = jax.tree_util.tree_map(jnp.zeros_like, params).replace(
         mass=g_mass, force=jnp.sum(g_force, axis=0), torque=jnp.sum(g_torque, axis=0),
         gravity=jnp.sum(g_force * params.mass[:, None], axis=(0, 1)), dt=g_dt,
-        inertia=outer_sum(pieces["inertia"]),
-        inv_inertia=outer_sum(pieces["inv_inertia"]) + outer_sum(pieces["spin"]))
+        inertia=matrices(sums["inertia"]), inv_inertia=matrices(sums["inv_inertia"]))
     return g_params, None if applied is None else Wrench(force=g_force, torque=g_torque)
 
 
@@ -351,25 +359,48 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
     def run_backward(residuals, g_states):
         params, first, inputs, applied = residuals
         if every == 1:
-            inputs = jax.tree_util.tree_map(lambda a, after: jnp.concatenate([a[None], after[:-1]]),
-                                            first, inputs)
+            # Step t's input is step t − 1's output, read from the trajectory
+            # in the loop: a shifted copy of it cost a pass over T States.
+            def input_of(t):
+                previous = jnp.maximum(t - 1, 0)
+                return jax.tree_util.tree_map(
+                    lambda a, start: jnp.where(t > 0, jax.lax.dynamic_index_in_dim(a, previous, keepdims=False),
+                                               start), inputs, first)
+
+            step_inputs = jnp.arange(num_steps)
         else:
-            inputs = _merge_leading(inputs)
+            input_of, step_inputs = (lambda before: before), _merge_leading(inputs)
         # Each step's output cotangent: g_states after every every-th step, zero between.
-        g_steps = _merge_leading(jax.tree_util.tree_map(
+        g_steps = g_states if every == 1 else _merge_leading(jax.tree_util.tree_map(
             lambda g: jnp.zeros((num_saved, every) + g.shape[1:], g.dtype).at[:, -1].set(g), g_states))
 
         def keep(parts):
             return vec.materialize(parts, params)
 
-        def back(g_state, x):
-            before, g_now, applied_now = x
+        # The loop carries the state's cotangent and the sums of the parameters'
+        # (25 per body): at 1 024 worlds, stacking the sums' factors per step
+        # and contracting them after the loop cost more than the loop itself.
+        # Constant loads' cotangents are summed there too; applied loads'
+        # leave the loop per step, as the Wrench of each step needs its own.
+        def back(carry, x):
+            g_state, sums = carry
+            step_input, g_now, applied_now = x
+            before = input_of(step_input)
             g_after = tuple(vec.add(g, unstack(getattr(g_now, name))) for g, name in zip(g_state, _STATE_VECTORS))
-            return _step_adjoint(model, params, before, applied_now, g_after, keep)
+            g_before, step_sums, loads = _step_adjoint(model, params, before, applied_now, g_after, keep)
+            if applied is None:
+                step_sums, loads = dict(step_sums, loads=loads), None
+            return (g_before, jax.tree_util.tree_map(jnp.add, sums, step_sums)), loads
 
         init = tuple(unstack(jnp.zeros_like(getattr(first, name))) for name in _STATE_VECTORS)
-        g_first, pieces = jax.lax.scan(back, init, (inputs, g_steps, applied), reverse=True)
-        g_params, g_applied = _parameter_cotangents(model, params, applied, pieces, g_steps.time)
+        zero = jnp.zeros_like(params.mass)
+        no_sums = dict(inv_inertia=(zero,) * 9, inertia=(zero,) * 9, h=zero)
+        if applied is None:
+            no_sums["loads"] = jnp.zeros((6,) + zero.shape, zero.dtype)
+        xs = (step_inputs, g_steps, applied)
+        (g_first, sums), loads = jax.lax.scan(back, (init, no_sums), xs, reverse=True)
+        loads = sums["loads"][None] if applied is None else loads
+        g_params, g_applied = _parameter_cotangents(model, params, applied, sums, loads, g_steps.time)
         # The State's other fields (contact, momentum carry) are None for every model supports() accepts.
         g_state = first.replace(time=jnp.sum(g_steps.time),
                                 **{name: jnp.stack(parts, -1) for name, parts in zip(_STATE_VECTORS, g_first)})
