@@ -362,10 +362,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
             # Step t's input is step t − 1's output, read from the trajectory
             # in the loop: a shifted copy of it cost a pass over T States.
             def input_of(t):
-                previous = jnp.maximum(t - 1, 0)
-                return jax.tree_util.tree_map(
-                    lambda a, start: jnp.where(t > 0, jax.lax.dynamic_index_in_dim(a, previous, keepdims=False),
-                                               start), inputs, first)
+                def read(trajectory, start):
+                    previous = jax.lax.dynamic_index_in_dim(trajectory, jnp.maximum(t - 1, 0), keepdims=False)
+                    return jnp.where(t > 0, previous, start)
+
+                return jax.tree_util.tree_map(read, inputs, first)
 
             step_inputs = jnp.arange(num_steps)
         else:

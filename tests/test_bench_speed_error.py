@@ -130,7 +130,6 @@ def test_fronts_are_per_panel_and_levels_read_the_front():
     assert chosen == {"all": [0, 1, 2, 3, 4], "pareto": [0, 1, 4], "cheapest": [0, 4], "none": []}
 
 
-
 def _visible_tick_labels(axis, low, high):
     return [label.get_text() for label in axis.get_ticklabels()
             if label.get_text() and low <= label.get_position()[axis.axis_name == "y"] <= high]

@@ -25,8 +25,8 @@ each step's input) and one with them.
 
 **Time**: compile time apart; run = median of repeated calls with
 ``block_until_ready`` (:mod:`jaxrb.bench.timing`) of the forward loss and of
-its gradient, both over the same T steps, called in turn. The ratio grad / forward is the
-"cheap gradient" figure (target ≤ 3×; checkpointing adds about one more
+its gradient, both over the same T steps, called in turn. The ratio grad /
+forward is the "cheap gradient" figure (target ≤ 3×; checkpointing adds about one more
 forward pass). Timed at one world, and for scenes with a hand-written
 adjoint also at ``gradient_batch`` worlds (``vmap`` over the initial
 states, Params shared, the loss their mean).
@@ -320,8 +320,8 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         "the whole rollout (`rb.rollout`, every step kept). *grad / forward*: median run time of the "
         f"jitted gradient over that of the jitted forward loss, T = {settings['gradient_time_steps']} "
         "(target ≤ 3×), the two called in turn so they share the host's fast and slow spells (each "
-        "row times its own forward). *method*: `autodiff` is `rb.rollout`'s reverse mode, `checkpoint` the same "
-        "with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
+        "row times its own forward). *method*: `autodiff` is `rb.rollout`'s reverse mode, "
+        "`checkpoint` the same with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
         "adjoint of 3D semi-implicit free bodies (`jaxrb.adjoint`; none for contact). *batch*: worlds "
         "(`vmap` over the initial state, Params shared, the loss their mean). *temp memory*: "
         "`temp_size_in_bytes` of XLA's `memory_analysis()` of the compiled gradient (scratch besides "

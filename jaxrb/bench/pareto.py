@@ -63,7 +63,7 @@ def plot_speed_vs_error(ax, costs: Sequence[float], errors: Sequence[float], lab
 
 
 def label_short_log_axes(ax):
-    """Number both log axes of ``ax`` at its major ticks only, at 1, 2 and 5 per decade where an axis is short.
+    """Number the log axes of ``ax`` at major ticks only: at 1, 2 and 5 a decade where an axis is short.
 
     Matplotlib numbers only the powers of ten on a log axis, so costs that all
     fell between 1.2e-4 and 9e-4 left the axis with no number on it; its
