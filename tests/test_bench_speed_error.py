@@ -136,18 +136,17 @@ def _visible_tick_labels(axis, low, high):
 
 
 def test_speed_error_plot_labels_an_axis_shorter_than_a_decade():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     from jaxrb.bench.pareto import plot_speed_vs_error
 
-    figure, ax = plt.subplots()
+    figure = Figure()  # as plot_scene draws: no pyplot, no global backend switch
+    ax = figure.add_subplot()
     plot_speed_vs_error(ax, [1.3e-4, 2.5e-4, 8.5e-4], [1e-4, 1e-2, 1e-1], ["a", "b", "c"], ["g", "g", "g"])
-    figure.canvas.draw()
+    FigureCanvasAgg(figure).draw()
     # costs within one decade: at least two numbers on the x axis; errors span three powers of ten
     assert len(_visible_tick_labels(ax.xaxis, *ax.get_xlim())) >= 2
     assert len(_visible_tick_labels(ax.yaxis, *ax.get_ylim())) >= 2
-    plt.close(figure)
 
 # --- the error metrics against exact answers ----------------------------------------------
 
