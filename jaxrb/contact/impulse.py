@@ -494,6 +494,13 @@ def _sweep_rows(prep: Prepared, update, vel, angvel, lam, separation=None, extra
 # (an inactive row's update is discarded either way). The one-box bounce's
 # 1 000-step gradient ran about 9 % faster and compiled about 20 % sooner,
 # while the forward program keeps its cond (docs/performance.md, section 9).
+#
+# Why a custom vmap as well: under vmap a cond on a batched predicate becomes
+# a select, and JAX first batches every operand of the cond, the row index and
+# the rows' body numbers included, so each row's reads and writes turn into
+# gathers and scatters over the worlds. The batching rule below selects
+# without batching what is not batched: the reads stay dynamic slices
+# (docs/performance.md, section 17).
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _guarded_row(solve_row, active, operands):
@@ -502,7 +509,7 @@ def _guarded_row(solve_row, active, operands):
     operands: (index, velocities, old, prep, separation, extra) as in
     :func:`_sweep_rows`; returns (velocities, lam_row).
     """
-    return jax.lax.cond(active, lambda ops: solve_row(*ops), _kept, operands)
+    return _branch_or_select(solve_row)(active, operands)
 
 
 def _kept(operands):
@@ -511,16 +518,37 @@ def _kept(operands):
     return velocities, old
 
 
+def _selected(solve_row, active, operands):
+    """The row solved whatever ``active`` says, and its result dropped where it is inactive."""
+    solved = solve_row(*operands)
+    return jax.tree_util.tree_map(lambda new, kept: jnp.where(active, new, kept), solved, _kept(operands))
+
+
+def _branch_or_select(solve_row):
+    """``(active, operands) -> (velocities, lam_row)``: a branch, and under vmap a select."""
+    @jax.custom_batching.custom_vmap
+    def branch(active, operands):
+        return jax.lax.cond(active, lambda ops: solve_row(*ops), _kept, operands)
+
+    @branch.def_vmap
+    def batched(axis_size, in_batched, active, operands):
+        active_batched, operands_batched = in_batched
+        if active_batched:
+            per_world = partial(_selected, solve_row)
+        else:  # the same rows active in every world: the branch still skips them
+            per_world = branch.fun
+        in_axes = (0 if active_batched else None,
+                   jax.tree_util.tree_map(lambda batched: 0 if batched else None, operands_batched))
+        out = jax.vmap(per_world, in_axes=in_axes, axis_size=axis_size)(active, operands)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return branch
+
+
 @_guarded_row.defjvp
 def _guarded_row_jvp(solve_row, primals, tangents):
     active, operands = primals
-
-    def selected(operands):
-        solved = solve_row(*operands)
-        return jax.tree_util.tree_map(lambda new, kept: jnp.where(active, new, kept), solved,
-                                      _kept(operands))
-
-    return jax.jvp(selected, (operands,), (tangents[1],))
+    return jax.jvp(partial(_selected, solve_row, active), (operands,), (tangents[1],))
 
 
 def soft_parameters(params: Params, h):
