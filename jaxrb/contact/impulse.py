@@ -526,23 +526,24 @@ def _selected(solve_row, active, operands):
 
 def _branch_or_select(solve_row):
     """``(active, operands) -> (velocities, lam_row)``: a branch, and under vmap a select."""
-    @jax.custom_batching.custom_vmap
     def branch(active, operands):
         return jax.lax.cond(active, lambda ops: solve_row(*ops), _kept, operands)
 
-    @branch.def_vmap
+    branch_or_select = jax.custom_batching.custom_vmap(branch)
+
+    @branch_or_select.def_vmap
     def batched(axis_size, in_batched, active, operands):
         active_batched, operands_batched = in_batched
         if active_batched:
             per_world = partial(_selected, solve_row)
         else:  # the same rows active in every world: the branch still skips them
-            per_world = branch.fun
+            per_world = branch
         in_axes = (0 if active_batched else None,
                    jax.tree_util.tree_map(lambda batched: 0 if batched else None, operands_batched))
         out = jax.vmap(per_world, in_axes=in_axes, axis_size=axis_size)(active, operands)
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
-    return branch
+    return branch_or_select
 
 
 @_guarded_row.defjvp
