@@ -351,17 +351,21 @@ def test_vmap_over_worlds_matches_single_worlds(contact):
         np.testing.assert_allclose(batched.pos[index], single.pos, rtol=1e-9, atol=1e-12)
 
 
-def test_vmapped_impulse_rows_write_their_bodies_without_scatters():
-    """Each solver row updates its two bodies in place in every world, not by a scatter.
+@pytest.mark.parametrize("shape, time_of_impact", [(rb.Box((0.1, 0.1, 0.1)), False), (rb.Sphere(0.1), True)],
+                         ids=["box", "sphere_time_of_impact"])
+def test_vmapped_impulse_rows_write_their_bodies_without_scatters(shape, time_of_impact):
+    """Each solver row (and time-of-impact row) updates its two bodies in place in every world, not by a scatter.
 
     A branch on a batched predicate made JAX batch the row index and body
     numbers too, and the compiled step held a dozen scatters (and some 80
-    gathers); the row sweep's custom batching rule keeps them slices.
+    gathers); the row sweep's custom batching rule keeps them slices. The
+    time-of-impact pass added its impulses with scatter-adds until it swept
+    its rows the same way.
     """
     scene = rb.Scene(dim=3)
     scene.add_plane(restitution=0.5)
-    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.5), restitution=0.5)
-    model, params, state = scene.build(contact="impulse", dt=1 / 60, substeps=2)
+    scene.add_body(shape, mass=1.0, pos=(0.0, 0.0, 0.5), restitution=0.5)
+    model, params, state = scene.build(contact="impulse", dt=1 / 60, substeps=2, time_of_impact=time_of_impact)
     states = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), state)
     text = jax.jit(jax.vmap(rb.make_step(model), in_axes=(0, None))).lower(states, params).compile().as_text()
     assert " dynamic-update-slice(" in text or "dynamic-update-slice_fusion" in text

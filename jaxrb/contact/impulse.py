@@ -264,9 +264,8 @@ def current_separation(model: Model, prep: Prepared, state: State):
     return prep.separation + jnp.sum(prep.normal * (moved_a - moved_b), axis=-1)
 
 
-def _relative_velocity(model, prep, vel, angvel, rows=slice(None)):
-    return relative_velocity(model, vel, angvel, prep.body_a[rows], prep.body_b[rows],
-                             prep.arm_a[rows], prep.arm_b[rows])
+def _relative_velocity(model, prep, vel, angvel):
+    return relative_velocity(model, vel, angvel, prep.body_a, prep.body_b, prep.arm_a, prep.arm_b)
 
 
 def normal_velocity(model: Model, prep: Prepared, state: State):
@@ -276,26 +275,20 @@ def normal_velocity(model: Model, prep: Prepared, state: State):
     return jnp.sum(rel_vel * prep.normal, axis=-1)
 
 
-def apply_impulses(model, prep, vel, angvel, impulse, rows=slice(None)):
-    """Apply world impulses (rows, dim) at the contacts: +P on A, −P on B."""
-    a, b = prep.body_a[rows], prep.body_b[rows]
-    if isinstance(rows, slice) and rows == slice(None):  # every row: static slices where the table fixes them
-        add = row_summer(model, a, b)
-        summed = lambda values, side: pad(add(values, side))
-    else:
-        summed = lambda values, side: jax.ops.segment_sum(values, b if side else a, vel.shape[0])
+def apply_impulses(model, prep, vel, angvel, impulse):
+    """Apply world impulses (C, dim) at the contacts: +P on A, −P on B."""
+    add = row_summer(model, prep.body_a, prep.body_b)  # static slices where the pair table fixes the bodies
+    summed = lambda values, side: pad(add(values, side))
     linear = summed(impulse, 0) - summed(impulse, 1)
-    angular = (summed(moment(model, prep.arm_a[rows], impulse), 0)
-               - summed(moment(model, prep.arm_b[rows], impulse), 1))
+    angular = summed(moment(model, prep.arm_a, impulse), 0) - summed(moment(model, prep.arm_b, impulse), 1)
     inv_mass = prep.inv_mass[:, None]
     return vel + inv_mass * linear, angvel + apply_inverse_inertia(model, prep.inv_inertia, angular)
 
 
-def _normal_update(prep, rel_vel, lam, separation, h, soft, rows):
-    """New accumulated normal impulse (r,) of some contact rows (see :func:`_normal_impulse`)."""
-    vn = jnp.sum(rel_vel * prep.normal[rows], axis=-1)
-    return _normal_impulse(vn, lam[rows, 0], separation[rows], prep.normal_mass[rows], prep.smoothing[rows],
-                           prep.active[rows], h, soft)
+def _normal_update(prep, rel_vel, lam, separation, h, soft):
+    """New accumulated normal impulse (C,) of every contact row (see :func:`_normal_impulse`)."""
+    vn = jnp.sum(rel_vel * prep.normal, axis=-1)
+    return _normal_impulse(vn, lam[:, 0], separation, prep.normal_mass, prep.smoothing, prep.active, h, soft)
 
 
 def _normal_impulse(vn, old, separation, normal_mass, smoothing, active, h, soft):
@@ -336,35 +329,35 @@ def smooth_clamp(impulse, width):
     return jnp.where(smooth, jnp.where(negative, tail, 0.5 * (impulse + root)), jnp.maximum(impulse, 0.0))
 
 
-def _local_velocity_change(model, prep, impulse, rows):
+def _local_velocity_change(model, prep, impulse):
     """Change of each contact's own relative velocity when it alone applies ``impulse``.
 
     Uses the (possibly split) masses in ``prep``, i.e. the contact's private
     copies of its two bodies: Tonge's sub-bodies in the Jacobi scheme.
     """
-    a, b = prep.body_a[rows], prep.body_b[rows]
+    a, b = prep.body_a, prep.body_b
     inv_mass, inv_inertia = _split(model, prep.inv_mass, prep.inv_inertia, prep.split)
     change = (inv_mass[a] + inv_mass[b])[:, None] * impulse
-    for body, arm in ((a, prep.arm_a[rows]), (b, prep.arm_b[rows])):
+    for body, arm in ((a, prep.arm_a), (b, prep.arm_b)):
         spin = apply_inverse_inertia(model, inv_inertia[body], moment(model, arm, impulse))
         change = change + spin_cross(model, spin, arm)
     return change
 
 
-def _friction_update(model, prep, rel_vel, lam, normal_impulse, rows):
-    """New accumulated friction impulse vector (r, dim), clamped to the cone μ·λ_n.
+def _friction_update(model, prep, rel_vel, lam, normal_impulse):
+    """New accumulated friction impulse vector (C, dim) of every row, clamped to the cone μ·λ_n.
 
     The tangent directions are solved one after the other, each seeing the
     other's effect on this contact (a small block Gauss–Seidel).
     """
-    friction = lam[rows, 1:]
+    friction = lam[:, 1:]
     for tangent, mass in zip(prep.tangents, prep.tangent_mass):
-        vt = jnp.sum(rel_vel * tangent[rows], axis=-1)
-        delta = -(mass[rows] * vt)[:, None] * tangent[rows]
+        vt = jnp.sum(rel_vel * tangent, axis=-1)
+        delta = -(mass * vt)[:, None] * tangent
         friction = friction + delta
-        rel_vel = rel_vel + _local_velocity_change(model, prep, delta, rows)
-    friction = clamp_to_disc(friction, prep.friction[rows] * normal_impulse)
-    return jnp.where(prep.active[rows][:, None], friction, 0.0)
+        rel_vel = rel_vel + _local_velocity_change(model, prep, delta)
+    friction = clamp_to_disc(friction, prep.friction * normal_impulse)
+    return jnp.where(prep.active[:, None], friction, 0.0)
 
 
 def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, soft):
@@ -377,12 +370,10 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
     if model.solver == "jacobi":
         # Each contact solves its normal and friction rows in turn on its own
         # split sub-bodies (a block), so splitting mass by contact count is enough.
-        rows = slice(None)
         rel_vel = _relative_velocity(model, prep, vel, angvel)
-        normal = _normal_update(prep, rel_vel, lam, separation, h, soft, rows)
-        rel_vel = rel_vel + _local_velocity_change(
-            model, prep, (normal - lam[:, 0])[:, None] * prep.normal, rows)
-        friction = _friction_update(model, prep, rel_vel, lam, normal, rows)
+        normal = _normal_update(prep, rel_vel, lam, separation, h, soft)
+        rel_vel = rel_vel + _local_velocity_change(model, prep, (normal - lam[:, 0])[:, None] * prep.normal)
+        friction = _friction_update(model, prep, rel_vel, lam, normal)
         impulse = (normal - lam[:, 0])[:, None] * prep.normal + friction - lam[:, 1:]
         vel, angvel = apply_impulses(model, prep, vel, angvel, impulse)
         return vel, angvel, jnp.concatenate([normal[:, None], friction], axis=-1)
@@ -392,21 +383,13 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
         normal = _normal_impulse(_row_speed(row, 0, bodies), old[0], separation,
                                  row.normal_mass, row.smoothing, row.active, h, soft)
         bodies = _row_push(row, 0, bodies, normal - old[0])
-        # Friction in the row's tangent coordinates; the second tangent sees the
-        # first one's update through the coupling (a small block Gauss–Seidel).
-        old_friction = [jnp.sum(old[1:] * t) for t in row.tangents]
-        speeds = [_row_speed(row, 1 + k, bodies) for k in range(len(row.tangents))]
-        friction = [old_friction[0] - row.tangent_mass[0] * speeds[0]]
-        if model.dim == 3:
-            speed = speeds[1] + row.maps.coupling * (friction[0] - old_friction[0])
-            friction.append(old_friction[1] - row.tangent_mass[1] * speed)
-        friction = jnp.where(row.active, clamp_to_disc(jnp.stack(friction), row.friction * normal), 0.0)
-        for k in range(len(row.tangents)):
-            bodies = _row_push(row, 1 + k, bodies, friction[k] - old_friction[k])
+        bodies, friction = _row_friction(model, row, bodies, [jnp.sum(old[1:] * t) for t in row.tangents],
+                                        normal)
         world_friction = sum(f * t for f, t in zip(friction, row.tangents))
         return bodies, jnp.concatenate([normal[None], world_friction])
 
-    return _sweep_rows(prep, one_contact, vel, angvel, lam, separation, (h, soft))
+    (vel, angvel), lam = _sweep_rows(prep, one_contact, (vel, angvel), lam, separation, (h, soft))
+    return vel, angvel, lam
 
 
 # One sequential row at a time. The row index comes from an unbatched arange
@@ -425,16 +408,16 @@ def _row(prep: Prepared, index) -> Prepared:
     return jax.tree_util.tree_map(lambda field: _take(field, index), per_row)
 
 
-def _read_bodies(vel, angvel, a, b):
-    """(v_a, ω_a, v_b, ω_b) of bodies a and b from padded velocities."""
-    return _take(vel, a), _take(angvel, a), _take(vel, b), _take(angvel, b)
+def _read_bodies(arrays, a, b):
+    """Bodies a and b of each padded per-body array: (v_a, ω_a, v_b, ω_b) for (vel, angvel)."""
+    return tuple(_take(array, a) for array in arrays) + tuple(_take(array, b) for array in arrays)
 
 
-def _write_bodies(vel, angvel, a, b, bodies):
+def _write_bodies(arrays, a, b, bodies):
     """Put :func:`_read_bodies`' values back (the two bodies of a row are never the same)."""
-    va, wa, vb, wb = bodies
     put = lambda array, value, body: jax.lax.dynamic_update_index_in_dim(array, value, body, 0)
-    return put(put(vel, va, a), vb, b), put(put(angvel, wa, a), wb, b)
+    return tuple(put(put(array, at_a, a), at_b, b)
+                 for array, at_a, at_b in zip(arrays, bodies[:len(arrays)], bodies[len(arrays):]))
 
 
 def _row_speed(row, k, bodies):
@@ -454,15 +437,55 @@ def _row_push(row, k, bodies, impulse):
             vb - impulse * maps.inv_mass_b * direction, wb - impulse * maps.spin_b[k])
 
 
-def _sweep_rows(prep: Prepared, update, vel, angvel, lam, separation=None, extra=()):
-    """Run ``update(row, bodies, lam_row, separation_row, extra) -> (bodies, lam_row)`` on each row in order.
+def _row_friction(model, row, bodies, old_friction, normal):
+    """A row's friction after its normal impulse ``normal`` (scalar), and its bodies after the change.
 
-    vel, angvel: padded body velocities; lam: (C, 1 + dim); ``extra``: any
-    other arrays ``update`` reads (a pytree, passed through). ``update`` must
-    close over no traced values: everything it differentiates comes in as an
-    argument, because :func:`_guarded_row` gives it a custom JVP.
+    Solved in the row's tangent coordinates: the second tangent sees the
+    first one's update through the coupling (a small block Gauss–Seidel),
+    then the pair is clamped to the cone μ·normal.
 
-    The rows are a scan whose carry is the body velocities only: each row's
+    Args:
+        row: one row of :class:`Prepared` (:func:`_row`); bodies: (v_a, ω_a, v_b, ω_b).
+        old_friction: list of the accumulated friction along each tangent (scalars).
+
+    Returns:
+        (bodies, friction): friction a (len(tangents),) array.
+    """
+    speeds = [_row_speed(row, 1 + k, bodies) for k in range(len(row.tangents))]
+    friction = [old_friction[0] - row.tangent_mass[0] * speeds[0]]
+    if model.dim == 3:
+        speed = speeds[1] + row.maps.coupling * (friction[0] - old_friction[0])
+        friction.append(old_friction[1] - row.tangent_mass[1] * speed)
+    friction = jnp.where(row.active, clamp_to_disc(jnp.stack(friction), row.friction * normal), 0.0)
+    for k in range(len(row.tangents)):
+        bodies = _row_push(row, 1 + k, bodies, friction[k] - old_friction[k])
+    return bodies, friction
+
+
+def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), rows=None, active=None):
+    """Run ``update(row, bodies, lam_row, per_row_values, extra) -> (bodies, lam_row)`` on rows in order.
+
+    Args:
+        arrays: tuple of padded per-body arrays the rows read and write,
+            (vel, angvel) for the solver; ``bodies`` holds the row's two
+            bodies' values (:func:`_read_bodies`), and ``update`` returns them
+            changed.
+        lam: (R, k) per-row values handed in one row at a time and returned
+            updated (the accumulated impulses), or None.
+        per_row: a pytree of (C, ...) arrays ``update`` reads one row of
+            (``per_row_values``), or None.
+        extra: any other arrays ``update`` reads (a pytree, passed whole).
+        rows: (R,) static row indices to sweep, default every row in order.
+        active: (R,) bool, the rows to solve (the others are skipped);
+            default ``prep.active``, which needs ``rows`` left at its default.
+
+    Returns:
+        (arrays, lam) after the sweep.
+
+    ``update`` must close over no traced values: everything it differentiates
+    comes in as an argument, because :func:`_guarded_row` gives it a custom JVP.
+
+    The rows are a scan whose carry is the per-body arrays only: each row's
     impulses come in and go out as the scan's slices, so an inactive row can
     be skipped by a branch over the bodies and its own impulses. Unbatched, an
     inactive row then costs the branch and its slices (a 10-box stack has 440
@@ -470,20 +493,19 @@ def _sweep_rows(prep: Prepared, update, vel, angvel, lam, separation=None, extra
     bodies' velocities, O(n) per row, where a branch that also carried the
     (C, 1 + dim) impulses made each row O(C).
     """
-    def solve_row(index, velocities, old, prep, separation, extra):
+    def solve_row(index, arrays, old, prep, per_row, extra):
         row = _row(prep, index)
-        bodies = _read_bodies(*velocities, row.body_a, row.body_b)
-        gap = None if separation is None else _take(separation, index)
-        bodies, new = update(row, bodies, old, gap, extra)
-        return _write_bodies(*velocities, row.body_a, row.body_b, bodies), new
+        bodies = _read_bodies(arrays, row.body_a, row.body_b)
+        row_values = jax.tree_util.tree_map(lambda field: _take(field, index), per_row)
+        bodies, new = update(row, bodies, old, row_values, extra)
+        return _write_bodies(arrays, row.body_a, row.body_b, bodies), new
 
-    def body(velocities, row_slice):
-        index, old, active = row_slice
-        return _guarded_row(solve_row, active, (index, velocities, old, prep, separation, extra))
+    def body(arrays, row_slice):
+        index, old, row_active = row_slice
+        return _guarded_row(solve_row, row_active, (index, arrays, old, prep, per_row, extra))
 
-    rows = jnp.arange(prep.normal.shape[0])
-    (vel, angvel), lam = jax.lax.scan(body, (vel, angvel), (rows, lam, prep.active))
-    return vel, angvel, lam
+    indices = jnp.arange(prep.normal.shape[0]) if rows is None else jnp.asarray(rows)
+    return jax.lax.scan(body, tuple(arrays), (indices, lam, prep.active if active is None else active))
 
 
 # Why a custom JVP: the branch that skips an inactive row is what makes the
@@ -506,16 +528,16 @@ def _sweep_rows(prep: Prepared, update, vel, angvel, lam, separation=None, extra
 def _guarded_row(solve_row, active, operands):
     """``solve_row(*operands)`` if ``active`` else the row's velocities and impulses unchanged.
 
-    operands: (index, velocities, old, prep, separation, extra) as in
-    :func:`_sweep_rows`; returns (velocities, lam_row).
+    operands: (index, arrays, old, prep, per_row, extra) as in
+    :func:`_sweep_rows`; returns (arrays, lam_row).
     """
     return _branch_or_select(solve_row)(active, operands)
 
 
 def _kept(operands):
-    """What an inactive row leaves: its bodies' velocities and its impulses, unchanged."""
-    _, velocities, old = operands[:3]
-    return velocities, old
+    """What an inactive row leaves: its bodies' values and its impulses, unchanged."""
+    _, arrays, old = operands[:3]
+    return arrays, old
 
 
 def _selected(solve_row, active, operands):
@@ -584,4 +606,5 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
         normal = new_normal(_row_speed(row, 0, bodies), old[0], row, threshold)
         return _row_push(row, 0, bodies, normal - old[0]), old.at[0].set(normal)
 
-    return _sweep_rows(prep, one_contact, vel, angvel, lam, extra=threshold)
+    (vel, angvel), lam = _sweep_rows(prep, one_contact, (vel, angvel), lam, extra=threshold)
+    return vel, angvel, lam

@@ -38,12 +38,13 @@ pair kinds stay with the solver.
 
 from __future__ import annotations
 
-import jax
+from functools import partial
+
 import jax.numpy as jnp
 import numpy as np
 
 from jaxrb import quaternion as quat_ops
-from jaxrb.contact.impulse import Prepared, _friction_update, _relative_velocity, apply_impulses
+from jaxrb.contact.impulse import Prepared, _row_friction, _row_push, _row_speed, _sweep_rows
 from jaxrb.dynamics import inverse_inertia
 from jaxrb.integrators import angvel_from_momentum, body_angvel_and_momentum
 from jaxrb.types import Model, Params, State
@@ -106,53 +107,54 @@ def resolve_impacts(model: Model, prep: Prepared, vel, angvel, separation, owned
         position (n + 1, dim) and rotation-vector (n + 1, 3) or angle (n + 1,)
         corrections to add after the position phase.
     """
-    row_index = jnp.asarray(rows)
+    hits = owned & (separation < -prep.approach * h)
+    arrays = (vel, angvel, jnp.zeros_like(vel), jnp.zeros_like(angvel))
+    arrays, _ = _sweep_rows(prep, partial(_impact, model), arrays, None, (separation, start_speed), h,
+                            rows=rows, active=hits[rows])
+    return arrays
 
-    def one_row(i, carry):
-        row = jnp.reshape(row_index[i], (1,))
-        approach = prep.approach[row]
-        gap = separation[row]
-        closing = -approach
-        hits = (owned[row] & (gap < closing * h))[0]
 
-        def impact(carry):
-            vel, angvel, shift, turn = carry
-            time = gap / closing  # closing > threshold >= 0 wherever a row is owned
-            vn = jnp.sum(_relative_velocity(model, prep, vel, angvel, row) * prep.normal[row], axis=-1)
-            # Symplectic Euler moves a body through the substep with its
-            # end-of-substep velocity, so its positions run half a substep
-            # ahead of its velocities: the gap closes at t, but the body is
-            # then where the continuous motion is at t + h/2. Hit speed and
-            # rebound are taken at that time, with the loads' change of v_n
-            # over the substep (Δ) spread uniformly: a ball dropped from higher
-            # lands faster and bounces higher, as in the continuous motion.
-            load_change = approach - start_speed[row]
-            fraction = time / h
-            impact_speed = start_speed[row] + load_change * (fraction + 0.5)
-            rebound = -prep.restitution[row] * impact_speed + load_change * (0.5 - fraction)
-            normal_impulse = jnp.maximum(prep.normal_mass[row] * (rebound - vn), 0.0)
-            new_vel, new_angvel = apply_impulses(model, prep, vel, angvel,
-                                                 normal_impulse[:, None] * prep.normal[row], row)
-            rel_vel = _relative_velocity(model, prep, new_vel, new_angvel, row)
-            no_friction_yet = jnp.zeros((prep.normal.shape[0], prep.normal.shape[1] + 1), vel.dtype)
-            friction = _friction_update(model, prep, rel_vel, no_friction_yet, normal_impulse, row)
-            new_vel, new_angvel = apply_impulses(model, prep, new_vel, new_angvel, friction, row)
-            # After the hit the positions move with the rebound's mean velocity
-            # over the rest of the substep, not with its end value: that is a
-            # normal displacement of Δ·t(h − t)/(2h), given to the bodies as a
-            # "position impulse" in proportion to their inverse masses.
-            lag = prep.normal_mass[row] * load_change * fraction * (h - time) / 2.0
-            lag_vel, lag_angvel = apply_impulses(model, prep, jnp.zeros_like(vel), jnp.zeros_like(angvel),
-                                                 lag[:, None] * prep.normal[row], row)
-            return (new_vel, new_angvel, shift + (vel - new_vel) * time + lag_vel,
-                    turn + (angvel - new_angvel) * time + lag_angvel)
+def _impact(model, row, bodies, _, row_values, h):
+    """One row's impact (a :func:`jaxrb.contact.impulse._sweep_rows` update).
 
-        # Under vmap the cond is a select and both sides run; unbatched, a row
-        # that does not hit costs only the test.
-        return jax.lax.cond(hits, impact, lambda c: c, carry)
-
-    start = (vel, angvel, jnp.zeros_like(vel), jnp.zeros_like(angvel))
-    return jax.lax.fori_loop(0, len(rows), one_row, start)
+    bodies: (v, ω, shift, turn) of body A, then of body B; row_values: the
+    row's (separation, start_speed). Returns (bodies, None).
+    """
+    gap, start_speed = row_values
+    vel_a, angvel_a, shift_a, turn_a, vel_b, angvel_b, shift_b, turn_b = bodies
+    velocities = (vel_a, angvel_a, vel_b, angvel_b)
+    closing = -row.approach
+    # closing > threshold >= 0 wherever the row hits; the guard keeps the rows
+    # that are solved and then dropped (under vmap, and in the derivative
+    # program) from dividing by zero, whose NaN would reach the gradient.
+    time = gap / jnp.where(closing > 0.0, closing, 1.0)
+    # Symplectic Euler moves a body through the substep with its
+    # end-of-substep velocity, so its positions run half a substep ahead of
+    # its velocities: the gap closes at t, but the body is then where the
+    # continuous motion is at t + h/2. Hit speed and rebound are taken at that
+    # time, with the loads' change of v_n over the substep (Δ) spread
+    # uniformly: a ball dropped from higher lands faster and bounces higher,
+    # as in the continuous motion.
+    load_change = row.approach - start_speed
+    fraction = time / h
+    impact_speed = start_speed + load_change * (fraction + 0.5)
+    rebound = -row.restitution * impact_speed + load_change * (0.5 - fraction)
+    normal_impulse = jnp.maximum(row.normal_mass * (rebound - _row_speed(row, 0, velocities)), 0.0)
+    new = _row_push(row, 0, velocities, normal_impulse)
+    no_friction_yet = [jnp.zeros_like(normal_impulse)] * len(row.tangents)
+    new, _ = _row_friction(model, row, new, no_friction_yet, normal_impulse)
+    # Each body moved with its old velocity for t and moves with the new one
+    # for h − t; the position phase gives it the new one for h, so the pose
+    # gets (old − new)·t. And after the hit the positions move with the
+    # rebound's mean velocity over the rest of the substep, not with its end
+    # value: a normal displacement of Δ·t(h − t)/(2h), given to the bodies as
+    # a "position impulse" in proportion to their inverse masses.
+    moved = tuple(pose + (old - changed) * time
+                  for pose, old, changed in zip((shift_a, turn_a, shift_b, turn_b), velocities, new))
+    lag = row.normal_mass * load_change * fraction * (h - time) / 2.0
+    shift_a, turn_a, shift_b, turn_b = _row_push(row, 0, moved, lag)
+    new_vel_a, new_angvel_a, new_vel_b, new_angvel_b = new
+    return (new_vel_a, new_angvel_a, shift_a, turn_a, new_vel_b, new_angvel_b, shift_b, turn_b), None
 
 
 def shift_pose(model: Model, params: Params, state: State, shift, turn) -> State:
