@@ -372,6 +372,36 @@ def test_vmapped_impulse_rows_write_their_bodies_without_scatters(shape, time_of
     assert " scatter(" not in text
 
 
+def test_vmapped_rows_active_in_no_world_are_skipped():
+    """Under vmap a solver row still branches on whether any world has it active.
+
+    The vmapped step keeps the one-world step's branches (one per row sweep),
+    and worlds whose rows differ (a box resting on the plane, one falling far
+    above it) still each match their own single run.
+    """
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.5, restitution=0.3)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(0.5, 0.0, 0.0),
+                   friction=0.5, restitution=0.3)
+    model, params, state = scene.build(contact="impulse", dt=1 / 60, substeps=2)
+    step = rb.make_step(model)
+    states = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), state)
+    states = states.replace(pos=states.pos.at[1, 0, 2].set(2.0))
+    count = lambda compiled: compiled.as_text().count(" conditional(")
+    one_world = jax.jit(step).lower(state, params).compile()
+    vmapped = jax.jit(jax.vmap(step, in_axes=(0, None))).lower(states, params).compile()
+    assert count(vmapped) == count(one_world) > 0
+
+    for _ in range(10):
+        singles = [one_world(jax.tree_util.tree_map(lambda a: a[i], states), params) for i in range(2)]
+        states = vmapped(states, params)
+        for i, single in enumerate(singles):
+            np.testing.assert_allclose(states.pos[i], single.pos, atol=1e-6)
+            np.testing.assert_allclose(states.vel[i], single.vel, atol=1e-5)
+        states = jax.tree_util.tree_map(lambda *worlds: jnp.stack(worlds), *singles)
+    assert float(states.pos[0, 0, 0]) > 0.0 and float(states.pos[1, 0, 2]) > 1.5
+
+
 @pytest.mark.parametrize("contact", MODELS)
 def test_gradients_through_contact_are_finite(contact):
     scene = rb.Scene(dim=3)

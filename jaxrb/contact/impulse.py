@@ -547,7 +547,7 @@ def _selected(solve_row, active, operands):
 
 
 def _branch_or_select(solve_row):
-    """``(active, operands) -> (velocities, lam_row)``: a branch, and under vmap a select."""
+    """``(active, operands) -> (arrays, lam_row)``: a branch, and under vmap mostly a select."""
     def branch(active, operands):
         return jax.lax.cond(active, lambda ops: solve_row(*ops), _kept, operands)
 
@@ -556,13 +556,17 @@ def _branch_or_select(solve_row):
     @branch_or_select.def_vmap
     def batched(axis_size, in_batched, active, operands):
         active_batched, operands_batched = in_batched
-        if active_batched:
-            per_world = partial(_selected, solve_row)
-        else:  # the same rows active in every world: the branch still skips them
-            per_world = branch
         in_axes = (0 if active_batched else None,
                    jax.tree_util.tree_map(lambda batched: 0 if batched else None, operands_batched))
-        out = jax.vmap(per_world, in_axes=in_axes, axis_size=axis_size)(active, operands)
+        each_world = lambda per_world: jax.vmap(per_world, in_axes=in_axes, axis_size=axis_size)
+        if active_batched:
+            # A row active in no world (a stack's pairs that do not touch) is
+            # skipped in all of them at once; one active anywhere is solved in
+            # every world and kept where it is active.
+            out = jax.lax.cond(jnp.any(active), each_world(partial(_selected, solve_row)),
+                               each_world(lambda _, operands: _kept(operands)), active, operands)
+        else:  # the same rows active in every world: the branch still skips them
+            out = each_world(branch)(active, operands)
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return branch_or_select
