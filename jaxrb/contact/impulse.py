@@ -489,9 +489,10 @@ def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), row
     impulses come in and go out as the scan's slices, so an inactive row can
     be skipped by a branch over the bodies and its own impulses. Unbatched, an
     inactive row then costs the branch and its slices (a 10-box stack has 440
-    rows, 40 of them active at rest); under vmap the branch is a select of the
-    bodies' velocities, O(n) per row, where a branch that also carried the
-    (C, 1 + dim) impulses made each row O(C).
+    rows, 40 of them active at rest). Under vmap a row active in no world is
+    still skipped, and one active in some world is a select of the per-body
+    arrays, O(n) per row, where a branch that also carried the (C, 1 + dim)
+    impulses made each row O(C).
     """
     def solve_row(index, arrays, old, prep, per_row, extra):
         row = _row(prep, index)
