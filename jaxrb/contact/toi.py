@@ -133,8 +133,7 @@ def _impact(model, row, bodies, _, row_values, h):
     # its velocities: the gap closes at t, but the body is then where the
     # continuous motion is at t + h/2. Hit speed and rebound are taken at that
     # time, with the loads' change of v_n over the substep (Δ) spread
-    # uniformly: a ball dropped from higher lands faster and bounces higher,
-    # as in the continuous motion.
+    # uniformly (see ``start_speed`` in :func:`resolve_impacts`).
     load_change = row.approach - start_speed
     fraction = time / h
     impact_speed = start_speed + load_change * (fraction + 0.5)
