@@ -462,7 +462,7 @@ def _row_friction(model, row, bodies, old_friction, normal):
     return bodies, friction
 
 
-def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), rows=None, active=None):
+def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), rows=None):
     """Run ``update(row, bodies, lam_row, per_row_values, extra) -> (bodies, lam_row)`` on rows in order.
 
     Args:
@@ -475,9 +475,9 @@ def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), row
         per_row: a pytree of (C, ...) arrays ``update`` reads one row of
             (``per_row_values``), or None.
         extra: any other arrays ``update`` reads (a pytree, passed whole).
-        rows: (R,) static row indices to sweep, default every row in order.
-        active: (R,) bool, the rows to solve (the others are skipped);
-            default ``prep.active``, which needs ``rows`` left at its default.
+        rows: (R,) static row indices to sweep, default every row in order;
+            of these, the rows ``prep.active`` marks are solved and the
+            others skipped.
 
     Returns:
         (arrays, lam) after the sweep.
@@ -505,8 +505,11 @@ def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), row
         index, old, row_active = row_slice
         return _guarded_row(solve_row, row_active, (index, arrays, old, prep, per_row, extra))
 
-    indices = jnp.arange(prep.normal.shape[0]) if rows is None else jnp.asarray(rows)
-    return jax.lax.scan(body, tuple(arrays), (indices, lam, prep.active if active is None else active))
+    if rows is None:
+        indices, active = jnp.arange(prep.normal.shape[0]), prep.active
+    else:
+        indices, active = jnp.asarray(rows), prep.active[rows]
+    return jax.lax.scan(body, tuple(arrays), (indices, lam, active))
 
 
 # Why a custom JVP: the branch that skips an inactive row is what makes the

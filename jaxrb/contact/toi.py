@@ -109,8 +109,8 @@ def resolve_impacts(model: Model, prep: Prepared, vel, angvel, separation, owned
     """
     hits = owned & (separation < -prep.approach * h)
     arrays = (vel, angvel, jnp.zeros_like(vel), jnp.zeros_like(angvel))
-    arrays, _ = _sweep_rows(prep, partial(_impact, model), arrays, None, (separation, start_speed), h,
-                            rows=rows, active=hits[rows])
+    arrays, _ = _sweep_rows(prep.replace(active=hits), partial(_impact, model), arrays, None,
+                            (separation, start_speed), h, rows=rows)
     return arrays
 
 
