@@ -27,7 +27,8 @@ SETTINGS = {
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
                  contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
                  contact_batches=(1024, 16), contact_steps=100,
-                 gradient_scenes=("tumble", "box_bounce"), gradient_memory_steps=(1000, 10000),
+                 gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
+                 gradient_memory_steps=(1000, 10000),
                  gradient_time_steps=1000, gradient_batch=1024),
 }
 

@@ -8,6 +8,10 @@ step). Scenes (float32 by default, like the other throughput benchmarks):
 
 * **box_bounce**: box (half 0.1 m, 1 kg) dropped from 0.5 m with a tumble,
   restitution 0.5, onto a plane; impulse contact, dt = 1/60 s, 4 substeps.
+* **box_drop_penalty**: the same box and drop with penalty contact at the
+  box-drop benchmark's step, dt = 2 ms, one substep (the rollout's
+  plane-penalty path, :mod:`jaxrb.plane_penalty`), so that both contact
+  models' gradients are timed.
 * **tumble**: torque-free body, principal inertia (0.3, 0.35, 0.4) kg m²,
   ω0 = (0.1, 15, 0.1) rad/s, no gravity; semi-implicit Euler, dt = 1/240 s.
 
@@ -34,7 +38,7 @@ states, Params shared, the loss their mean).
 **Methods** (:data:`METHODS`): ``autodiff`` (``rb.rollout``'s reverse
 mode), ``checkpoint`` (the same with ``checkpoint=True``) and ``adjoint``
 (``rb.rollout(..., adjoint=True)``, :mod:`jaxrb.adjoint`; only where the
-scene's model has one, so not *box_bounce*).
+scene's model has one, so not the contact scenes).
 """
 
 from __future__ import annotations
@@ -69,6 +73,8 @@ def tumble_scene():
 SCENES = {
     "box_bounce": (box_bounce_scene, "box half 0.1 m dropped from 0.5 m with a tumble, e=0.5, impulse",
                    dict(dt=1 / 60, substeps=4, contact="impulse")),
+    "box_drop_penalty": (box_bounce_scene, "the same box and drop, penalty contact, dt = 2 ms",
+                         dict(dt=2e-3, substeps=1, contact="penalty")),
     "tumble": (tumble_scene, "torque-free tumbling body, semi-implicit",
                dict(dt=1 / 240, integrator="semi_implicit")),
 }
@@ -78,7 +84,7 @@ METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": d
 
 #: What :func:`run` does by default; ``python -m jaxrb.bench`` passes its own.
 #: ``gradient_batch``: worlds of the batched time rows (None: none).
-DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce"), gradient_memory_steps=(1000, 10000),
+DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"), gradient_memory_steps=(1000, 10000),
                         gradient_time_steps=1000, gradient_batch=1024, repeats=5, gradient_dtype="float32")
 
 #: The issue's target for grad / forward.
