@@ -84,8 +84,9 @@ METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": d
 
 #: What :func:`run` does by default; ``python -m jaxrb.bench`` passes its own.
 #: ``gradient_batch``: worlds of the batched time rows (None: none).
-DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"), gradient_memory_steps=(1000, 10000),
-                        gradient_time_steps=1000, gradient_batch=1024, repeats=5, gradient_dtype="float32")
+DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
+                        gradient_memory_steps=(1000, 10000), gradient_time_steps=1000, gradient_batch=1024,
+                        repeats=5, gradient_dtype="float32")
 
 #: The issue's target for grad / forward.
 TARGET_RATIO = 3.0
