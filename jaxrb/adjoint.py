@@ -21,6 +21,9 @@ adjoint of the 3D semi-implicit free-body step by hand:
 What it covers (:func:`supports`): 3D bodies, integrator ``semi_implicit``
 (either orientation update), no contact and no damping; any number of
 substeps; gravity, constant and applied loads; ``every`` and ``vmap``.
+Bodies against planes with penalty contact have their own adjoint, built
+on this one's substep (:mod:`jaxrb.plane_penalty_adjoint`); :func:`supports`
+and :func:`rollout` cover both.
 
 The price is forward mode: a ``jax.custom_vjp`` function cannot be
 differentiated by ``jax.jvp``/``jax.jacfwd``, so ``adjoint=True`` is for
@@ -47,14 +50,22 @@ from jaxrb.types import Model, Params, State, Wrench
 
 
 def supports(model: Model) -> bool:
-    """Whether ``model``'s rollouts have a hand-written adjoint (see the module docs).
+    """Whether ``model``'s rollouts have a hand-written adjoint.
 
     Args:
         model: a Model from ``Scene.build``.
 
     Returns:
-        True for 3D semi-implicit free bodies without damping.
+        True for 3D semi-implicit models without damping that are free bodies
+        (this module) or bodies against planes with penalty contact and
+        spring friction (:mod:`jaxrb.plane_penalty_adjoint`).
     """
+    from jaxrb import plane_penalty_adjoint  # it builds on this module
+
+    return _supports_free_bodies(model) or plane_penalty_adjoint.supports(model)
+
+
+def _supports_free_bodies(model: Model) -> bool:
     return (model.dim == 3 and model.integrator == "semi_implicit" and not model.damping
             and (model.contact == "none" or model.num_contacts == 0))
 
@@ -327,11 +338,17 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
 
     Returns:
         The stacked States (num_steps // every, ...), bit for bit
-        ``rb.rollout``'s. Reverse mode keeps every step's input State (T
-        States, as ``rb.rollout`` without segments; with ``every=1`` these are
-        the trajectory itself). Forward mode raises (``jax.custom_vjp``).
+        ``rb.rollout``'s for free bodies (to float rounding for penalty
+        contact: :mod:`jaxrb.plane_penalty_adjoint`). Reverse mode keeps every
+        step's input State (T States, as ``rb.rollout`` without segments;
+        with ``every=1`` these are the trajectory itself). Forward mode
+        raises (``jax.custom_vjp``).
     """
     model = step.model
+    if not _supports_free_bodies(model):
+        from jaxrb import plane_penalty_adjoint
+
+        return plane_penalty_adjoint.rollout(step, state, params, num_steps, every, applied)
     num_saved = num_steps // every
 
     def forward(params, state, applied, keep_inputs):

@@ -314,12 +314,14 @@ class PlanePenalty:
         Returns:
             The Carry after the step.
         """
-        model = self.model
+        force, torque = net_wrench(self.model, params, applied)
+        return self.advance(carry, params, unstack(force), unstack(torque), prepared)
+
+    def advance(self, carry: Carry, params: Params, force, torque, prepared: Optional[dict] = None) -> Carry:
+        """:meth:`step` with the external loads given: 3 parts of (n,) force and of torque (``net_wrench``'s)."""
         prepared = self.prepare(params) if prepared is None else prepared
-        force, torque = net_wrench(model, params, applied)
-        force, torque = unstack(force), unstack(torque)
-        h = params.dt / model.substeps
-        for _ in range(model.substeps):
+        h = params.dt / self.model.substeps
+        for _ in range(self.model.substeps):
             carry = self._substep(carry, params, prepared, force, torque, h)
         return dataclasses.replace(carry, time=carry.time + params.dt)
 
@@ -353,8 +355,12 @@ class PlanePenalty:
         return Carry(pos=pos, vel=vel, angvel=angvel, quat=quat, rotation=rotation,
                      normal_force=normal_forces, friction=frictions, time=carry.time)
 
-    def _penalty(self, carry, params, prepared, force, torque, h):
+    def _penalty(self, carry, params, prepared, force, torque, h, record: Optional[dict] = None):
         """penalty_wrench on every group: body force and torque sums, and each row's carried forces.
+
+        ``record``, when given, receives the intermediates the hand-written
+        adjoint reads (:mod:`jaxrb.plane_penalty_adjoint`): the predicted
+        angular velocity and, under ``"groups"``, one dict per group.
 
         Returns:
             ``(force, torque, normal_forces, frictions)``: 3 parts of (n,)
@@ -366,6 +372,8 @@ class PlanePenalty:
         contact_force, contact_torque = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
         normal_forces, frictions = [], []
         predicted_vel, predicted_angvel = self._velocity_phase(params, prepared, carry, force, torque, h)
+        if record is not None:
+            record.update(predicted_angvel=predicted_angvel, groups=[])
         stiffness = params.penalty_stiffness
         rows = [self._contact_rows(params, carry, group, data) for group, data in zip(self.groups, prepared["groups"])]
         # Contacts touching each body, over all its groups (the damper cap shares them).
@@ -384,7 +392,8 @@ class PlanePenalty:
                 return 1.0 / (data["inv_mass"] + angular) / sharing
 
             activation, gate = spring_activation(model, params, -row["dist"])
-            damping = jnp.minimum(data["damping"], contact_mass(normal) / h)
+            normal_mass = contact_mass(normal)
+            damping = jnp.minimum(data["damping"], normal_mass / h)
             normal_force = jnp.where(active, jnp.maximum(stiffness * activation - damping * row["vn"] * gate, 0.0),
                                      0.0)
             predicted_rel = vec.add(tuple(map(take, predicted_vel)), vec.cross(tuple(map(take, predicted_angvel)), arm))
@@ -405,6 +414,11 @@ class PlanePenalty:
                 coulomb = limit / jnp.sqrt(length ** 2 + params.friction_velocity ** 2)
                 friction = held = vec.along(-jnp.minimum(coulomb, stop_force), slip)
             total = vec.materialize(vec.add(vec.along(normal_force, normal), friction), params)
+            if record is not None:  # the spring friction's intermediates (the adjoint's only law)
+                record["groups"].append(dict(
+                    row, sharing=sharing, activation=activation, gate=gate, normal_mass=normal_mass,
+                    damping=damping, normal_force=normal_force, damper=damper, elastic=elastic, slip=slip,
+                    limit=limit, pressing=pressing, friction=friction, held=held, total=total))
             to_bodies = lambda vector: tuple(part if vec.is_zero(part) else _to_bodies(part, group.bodies, num)
                                              for part in vector)
             contact_force = vec.add(contact_force, to_bodies(total))

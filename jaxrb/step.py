@@ -184,9 +184,10 @@ def _check_adjoint(model: Optional[Model], checkpoint) -> None:
         raise ValueError("rollout: adjoint=True needs a step from jaxrb.make_step (it reads step.model)")
     if not hand_written.supports(model):
         raise ValueError(
-            f"rollout: adjoint=True is written for 3D semi-implicit free bodies without damping; this model "
-            f"has dim={model.dim}, integrator={model.integrator!r}, contact={model.contact!r} with "
-            f"{model.num_contacts} contact rows, damping={model.damping} (use adjoint=False)")
+            f"rollout: adjoint=True is written for 3D semi-implicit models without damping: free bodies, or "
+            f"penalty contact with spring friction against planes only; this model has dim={model.dim}, "
+            f"integrator={model.integrator!r}, contact={model.contact!r} with {model.num_contacts} contact rows, "
+            f"penalty_friction={model.penalty_friction!r}, damping={model.damping} (use adjoint=False)")
     if checkpoint:
         raise ValueError("rollout: adjoint=True keeps every step's input State; checkpoint segments are not "
                          "available with it (pass checkpoint=False)")
@@ -215,9 +216,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         applied: optional Wrench with a leading time axis (num_steps, ...)
             applied one slice per step.
         adjoint: reverse mode by :mod:`jaxrb.adjoint`'s hand-written adjoint
-            instead of autodiff: for 3D semi-implicit free bodies without
-            damping (``jaxrb.adjoint.supports``), a gradient 2-4× cheaper
-            (docs/performance.md, section 11). The States are the same;
+            instead of autodiff: for 3D semi-implicit models without damping
+            (``jaxrb.adjoint.supports``), free bodies (a gradient 2-4×
+            cheaper, docs/performance.md, section 11) and penalty contact
+            with spring friction against planes (section 21). The States
+            are the same (for penalty contact to float rounding);
             forward mode (``jax.jvp``, ``jax.jacfwd``) is not available
             through such a rollout, and ``checkpoint`` must stay False (it
             keeps every step's input State, as ``checkpoint=False`` does).

@@ -146,7 +146,7 @@ def scenes_without_an_adjoint():
 def test_models_without_an_adjoint_are_value_errors(name):
     scene, settings = scenes_without_an_adjoint()[name]
     model, params, state = scene.build(**settings)
-    with pytest.raises(ValueError, match="adjoint=True is written for 3D semi-implicit free bodies"):
+    with pytest.raises(ValueError, match="adjoint=True is written for 3D semi-implicit models without damping"):
         rb.rollout(rb.make_step(model), state, params, 3, adjoint=True)
 
 

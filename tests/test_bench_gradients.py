@@ -72,11 +72,12 @@ def test_scenes_without_an_adjoint_skip_it():
 def test_penalty_scene_differentiates_through_its_contact():
     # The full report times this scene; here a short rollout that reaches the
     # plane (it lands after about 0.29 s) checks what it is: the plane-penalty
-    # path, no adjoint, and a finite gradient that the contact's stiffness moves.
+    # path, with an adjoint, and a finite gradient that the contact's stiffness
+    # moves (tests/test_plane_penalty_adjoint.py checks its values).
     step, params, state = gradients.build("box_drop_penalty")
     assert step.plane_penalty is not None
-    assert gradients.methods_for(step, ("autodiff", "adjoint")) == ["autodiff"]
-    grad = jax.jit(jax.grad(gradients.make_loss(step, 200)))(params, state)
+    assert gradients.methods_for(step, ("autodiff", "adjoint")) == ["autodiff", "adjoint"]
+    grad = jax.jit(jax.grad(gradients.make_loss(step, 200, "adjoint")))(params, state)
     assert all(np.all(np.isfinite(leaf)) for leaf in jax.tree_util.tree_leaves(grad))
     assert grad.penalty_stiffness != 0.0
 
