@@ -661,8 +661,9 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
         print_fn: where ``log_every`` lines go (e.g. ``logging.info``).
         adjoint: take gradients with :func:`jaxrb.rollout`'s hand-written
             adjoint (``adjoint=True``); None (default) does where the model
-            has one (``jaxrb.adjoint.supports``: 3D semi-implicit free bodies
-            without damping) and ``checkpoint`` is off. A fit only uses reverse
+            has one (``jaxrb.adjoint.supports``: 3D semi-implicit models
+            without damping, free bodies or penalty contact with spring
+            friction against planes) and ``checkpoint`` is off. A fit only uses reverse
             mode, and the adjoint's gradients equal autodiff's to rounding.
 
     Returns:
