@@ -324,6 +324,40 @@ def _merge_leading(tree):
     return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:]), tree)
 
 
+def backward_loop_inputs(first, inputs, g_outputs, every: int):
+    """What a backward loop over the steps scans, and how it reads each step's input.
+
+    Args:
+        first: the rollout's initial state (any pytree).
+        inputs: with ``every`` = 1 the trajectory (T, ...) itself, else the
+            step inputs the forward loop kept, (T/every, every, ...).
+        g_outputs: cotangents of the saved states, (T/every, ...).
+        every: the rollout's ``every``.
+
+    Returns:
+        ``(input_of, step_inputs, g_steps)``: the loop scans ``step_inputs``
+        (T,) and ``g_steps`` (each step's output cotangent: zero between
+        saved states), and ``input_of(x)`` is the input state of the step
+        whose ``step_inputs`` entry is x.
+    """
+    if every == 1:
+        # Step t's input is step t − 1's output, read from the trajectory in
+        # the loop: a shifted copy of it cost a pass over T States.
+        def input_of(t):
+            def read(trajectory, start):
+                previous = jax.lax.dynamic_index_in_dim(trajectory, jnp.maximum(t - 1, 0), keepdims=False)
+                return jnp.where(t > 0, previous, start)
+
+            return jax.tree_util.tree_map(read, inputs, first)
+
+        num_steps = jax.tree_util.tree_leaves(g_outputs)[0].shape[0]
+        return input_of, jnp.arange(num_steps), g_outputs
+    num_saved = jax.tree_util.tree_leaves(g_outputs)[0].shape[0]
+    g_steps = _merge_leading(jax.tree_util.tree_map(
+        lambda g: jnp.zeros((num_saved, every) + g.shape[1:], g.dtype).at[:, -1].set(g), g_outputs))
+    return (lambda before: before), _merge_leading(inputs), g_steps
+
+
 def rollout(step: Callable, state: State, params: Params, num_steps: int, every: int,
             applied: Optional[Wrench]) -> State:
     """``rb.rollout(..., adjoint=True)``: the same States, with the hand-written adjoint as reverse mode.
@@ -375,22 +409,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
 
     def run_backward(residuals, g_states):
         params, first, inputs, applied = residuals
-        if every == 1:
-            # Step t's input is step t − 1's output, read from the trajectory
-            # in the loop: a shifted copy of it cost a pass over T States.
-            def input_of(t):
-                def read(trajectory, start):
-                    previous = jax.lax.dynamic_index_in_dim(trajectory, jnp.maximum(t - 1, 0), keepdims=False)
-                    return jnp.where(t > 0, previous, start)
-
-                return jax.tree_util.tree_map(read, inputs, first)
-
-            step_inputs = jnp.arange(num_steps)
-        else:
-            input_of, step_inputs = (lambda before: before), _merge_leading(inputs)
-        # Each step's output cotangent: g_states after every every-th step, zero between.
-        g_steps = g_states if every == 1 else _merge_leading(jax.tree_util.tree_map(
-            lambda g: jnp.zeros((num_saved, every) + g.shape[1:], g.dtype).at[:, -1].set(g), g_states))
+        input_of, step_inputs, g_steps = backward_loop_inputs(first, inputs, g_states, every)
 
         def keep(parts):
             return vec.materialize(parts, params)

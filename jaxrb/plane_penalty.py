@@ -314,14 +314,12 @@ class PlanePenalty:
         Returns:
             The Carry after the step.
         """
-        force, torque = net_wrench(self.model, params, applied)
-        return self.advance(carry, params, unstack(force), unstack(torque), prepared)
-
-    def advance(self, carry: Carry, params: Params, force, torque, prepared: Optional[dict] = None) -> Carry:
-        """:meth:`step` with the external loads given: 3 parts of (n,) force and of torque (``net_wrench``'s)."""
+        model = self.model
         prepared = self.prepare(params) if prepared is None else prepared
-        h = params.dt / self.model.substeps
-        for _ in range(self.model.substeps):
+        force, torque = net_wrench(model, params, applied)
+        force, torque = unstack(force), unstack(torque)
+        h = params.dt / model.substeps
+        for _ in range(model.substeps):
             carry = self._substep(carry, params, prepared, force, torque, h)
         return dataclasses.replace(carry, time=carry.time + params.dt)
 

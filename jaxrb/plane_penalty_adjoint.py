@@ -380,34 +380,26 @@ def _prepared_cotangent(prepared, body, rows):
                                        for g in group_rows["inv_inertia"])),
             friction=pair_sum(group_rows["friction"]), damping=pair_sum(group_rows["damping"]),
             offset=jnp.zeros_like(data["offset"]), radius=jnp.zeros_like(data["radius"])))
-    return dict(inv_mass=body["inv_mass"], inertia=_rows_of(body["inertia"]), inv_inertia=_rows_of(body["inv_inertia"]),
-                groups=tuple(groups))
+    return dict(inv_mass=body["inv_mass"], inertia=_rows_of(body["inertia"]),
+                inv_inertia=_rows_of(body["inv_inertia"]), groups=tuple(groups))
 
 
 def rollout(step: Callable, state: State, params: Params, num_steps: int, every: int,
             applied: Optional[Wrench]) -> State:
     """``rb.rollout(..., adjoint=True)`` for a plane-penalty model: the same States, this module's reverse mode.
 
-    Args:
-        step: from :func:`jaxrb.make_step` of a model :func:`supports` accepts.
-        state: initial State.
-        params: Params with ``inv_inertia`` filled (``rb.rollout`` does it).
-        num_steps: steps, a multiple of ``every``.
-        every: keep every ``every``-th state.
-        applied: None or a Wrench with a leading axis (num_steps, ...).
-
-    Returns:
-        The stacked States (num_steps // every, ...), those of the
-        plane-penalty rollout (the external loads are summed before the
-        loop, not in each step: equal to float rounding). Reverse mode keeps
-        every step's input Carry; forward mode raises (``jax.custom_vjp``).
+    Args and the States returned as for :func:`jaxrb.adjoint.rollout`, which
+    calls this for a model :func:`supports` accepts. The States are the
+    plane-penalty rollout's to float rounding (XLA fuses the two programs
+    differently). Reverse mode keeps every step's input Carry; forward mode
+    raises (``jax.custom_vjp``).
     """
     fast, model = step.plane_penalty, step.model
     num_saved = num_steps // every
     per_step = applied is not None
 
     def forward(params, prepared, carry, applied, keep_inputs):
-        # rb.rollout's plane-penalty loop (its States to float rounding: XLA fuses the two programs differently).
+        # rb.rollout's plane-penalty loop.
         def one(current, applied_now):
             return fast.step(current, params, applied_now, prepared), (
                 _without_rotation(current) if keep_inputs else None)
@@ -432,22 +424,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
 
     def run_backward(residuals, g_carries):
         params, prepared, first, inputs, applied = residuals
-        if every == 1:
-            # Step t's input is step t − 1's output, read from the trajectory.
-            def input_of(t):
-                def read(trajectory, start):
-                    previous = jax.lax.dynamic_index_in_dim(trajectory, jnp.maximum(t - 1, 0), keepdims=False)
-                    return jnp.where(t > 0, previous, start)
-
-                return jax.tree_util.tree_map(read, inputs, first)
-
-            step_inputs = jnp.arange(num_steps)
-        else:
-            input_of = lambda before: before
-            step_inputs = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:]), inputs)
-        g_steps = g_carries if every == 1 else jax.tree_util.tree_map(
-            lambda g: jnp.zeros((num_saved, every) + g.shape[1:], g.dtype).at[:, -1].set(g).reshape(
-                (num_steps,) + g.shape[1:]), g_carries)
+        input_of, step_inputs, g_steps = free_body.backward_loop_inputs(first, inputs, g_carries, every)
 
         def keep(parts):
             return vec.materialize(parts, params)

@@ -38,7 +38,7 @@ states, Params shared, the loss their mean).
 **Methods** (:data:`METHODS`): ``autodiff`` (``rb.rollout``'s reverse
 mode), ``checkpoint`` (the same with ``checkpoint=True``) and ``adjoint``
 (``rb.rollout(..., adjoint=True)``, :mod:`jaxrb.adjoint`; only where the
-scene's model has one, so not the contact scenes).
+scene's model has one: tumble and box_drop_penalty, not box_bounce).
 """
 
 from __future__ import annotations
@@ -329,7 +329,8 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         "(target ≤ 3×), the two called in turn so they share the host's fast and slow spells (each "
         "row times its own forward). *method*: `autodiff` is `rb.rollout`'s reverse mode, "
         "`checkpoint` the same with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
-        "adjoint of 3D semi-implicit free bodies (`jaxrb.adjoint`; none for contact). *batch*: worlds "
+        "adjoint of 3D semi-implicit free bodies and of penalty contact against planes (`jaxrb.adjoint`, "
+        "`jaxrb.plane_penalty_adjoint`; none for impulse contact). *batch*: worlds "
         "(`vmap` over the initial state, Params shared, the loss their mean). *temp memory*: "
         "`temp_size_in_bytes` of XLA's `memory_analysis()` of the compiled gradient (scratch besides "
         "arguments and outputs, mostly what is kept for the backward pass: `rb.rollout` "
