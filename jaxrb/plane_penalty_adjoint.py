@@ -57,6 +57,7 @@ from jaxrb.math import safe_div, unstack
 from jaxrb.plane_penalty import Carry, _rows, _to_bodies, supports as plane_penalty_supports
 from jaxrb.types import Model, Params, State, Wrench
 
+
 def supports(model: Model) -> bool:
     """Whether ``model``'s rollouts have this module's adjoint.
 
