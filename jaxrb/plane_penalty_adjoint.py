@@ -17,7 +17,7 @@ adjoints by hand, as :mod:`jaxrb.adjoint` does for free bodies:
   intermediates recorded by ``_penalty`` itself, then applies the chain
   rule on components: the free-body substep by :mod:`jaxrb.adjoint`'s
   substep adjoint, the contact wrench by :func:`_group_adjoint`, with the
-  cotangents many others read stored once (``keep``);
+  cotangents many others read stored once (``components.materialize``);
 * the cotangents of what ``PlanePenalty.prepare`` derives from the Params
   (inverse masses and inertias, mixed friction, dampers, body-frame points)
   are summed in the loop's carry, per body and per contact row, and
@@ -54,7 +54,7 @@ from jaxrb import adjoint as free_body, components as vec, quaternion as quat_op
 from jaxrb.compile import full_precision
 from jaxrb.dynamics import net_wrench
 from jaxrb.math import safe_div, unstack
-from jaxrb.plane_penalty import Carry, _rows, _to_bodies, supports as plane_penalty_supports
+from jaxrb.plane_penalty import Carry, _rows, _stored, _to_bodies, supports as plane_penalty_supports
 from jaxrb.types import Model, Params, State, Wrench
 
 
@@ -97,28 +97,19 @@ def _max_slope(x):
     return jnp.where(x > 0.0, 1.0, jnp.where(x == 0.0, 0.5, 0.0))
 
 
-def _kept(keep, *vectors):
-    """``vectors`` (tuples of parts) stored through one ``keep``, so that each is computed once."""
-    flat = keep(tuple(part for vector in vectors for part in vector))
-    out, start = [], 0
-    for vector in vectors:
-        out.append(flat[start:start + len(vector)])
-        start += len(vector)
-    return tuple(out)
-
-
 def _live(parts, like):
     """``parts`` with a structural zero wherever ``like`` has one (the cotangent of a part that is never computed)."""
     return tuple(0.0 if vec.is_zero(x) else g for g, x in zip(parts, like))
 
 
-def _group_adjoint(model, group, data, rec, angvel, predicted_angvel, stiffness, width, h, g_force, g_torque,
-                   g_normal_out, g_held_out, keep):
+def _group_adjoint(model, params, group, data, rec, angvel, predicted_angvel, h, g_force, g_torque, g_normal_out,
+                   g_held_out):
     """Row cotangents of one plane group's contact forces (spring friction), from those of its outputs.
 
     The forward is ``PlanePenalty._penalty``'s (see there); ``rec`` holds
     its intermediates for this group. Every array is (P, K) (a row per
-    contact point) or (P, 1) (a pair's), vectors 3 parts.
+    contact point) or (P, 1) (a pair's), vectors 3 parts. Cotangents that
+    several others read are stored once (``components.materialize``).
 
     Args:
         g_force, g_torque: 3 parts each, the cotangents of the group's
@@ -136,11 +127,12 @@ def _group_adjoint(model, group, data, rec, angvel, predicted_angvel, stiffness,
         the cotangent of the friction carried into the substep.
     """
     take = lambda values: _rows(values, group.bodies)
+    stiffness, width = params.penalty_stiffness, params.penalty_width
     normal, arm, rotation = rec["normal"], rec["arm"], rec["rotation"]
     pressing, active = rec["pressing"], rec["active"]
     tangential = lambda vector: group.normal.tangential(vector, normal)
     # Force and torque sums: force = Σ total, torque = Σ arm × total.
-    g_total = keep(vec.add(g_force, vec.cross(g_torque, arm)))
+    g_total = vec.materialize(vec.add(g_force, vec.cross(g_torque, arm)), params)
     g_arm = vec.cross(rec["total"], g_torque)
     g_normal = g_normal_out + vec.dot(g_total, normal)
     # The two clamps (friction applied, friction carried) and their limit μN.
@@ -150,7 +142,7 @@ def _group_adjoint(model, group, data, rec, angvel, predicted_angvel, stiffness,
     g_kept, g_limit_k = _clamp_adjoint(elastic, rec["limit"], vec.where(pressing, _live(g_held_out, rec["held"])))
     g_elastic = vec.add(g_applied, g_kept)
     g_slip = vec.along(-damper, g_applied)
-    (g_limit, g_damper), g_elastic, g_slip = _kept(keep, (g_limit_a + g_limit_k, -vec.dot(g_applied, slip)),
+    (g_limit, g_damper), g_elastic, g_slip = _stored(params, (g_limit_a + g_limit_k, -vec.dot(g_applied, slip)),
                                                    g_elastic, g_slip)
     g_normal = g_normal + data["friction"] * g_limit
     g_friction = rec["normal_force"] * g_limit
@@ -188,24 +180,24 @@ def _group_adjoint(model, group, data, rec, angvel, predicted_angvel, stiffness,
     else:
         g_penetration = _max_slope(penetration) * g_activation
         g_width = None
-    (g_dist, g_normal_mass, g_vn, g_stiffness, g_h), = _kept(keep, (-g_penetration, g_normal_mass, g_vn,
+    (g_dist, g_normal_mass, g_vn, g_stiffness, g_h), = _stored(params, (-g_penetration, g_normal_mass, g_vn,
                                                                      g_stiffness, g_h))
     # m_n = 1 / (1/m + cᵀ I⁻¹ c) / sharing, c = Rᵀ (arm × n)
     arm_cross = vec.cross(arm, normal)
     body_cross = vec.matvec_transposed(rotation, arm_cross)
     g_den = -rec["normal_mass"] ** 2 * rec["sharing"] * g_normal_mass
     inv_inertia = data["inv_inertia"]
-    g_body_cross = keep(vec.along(g_den, vec.add(vec.matvec(inv_inertia, body_cross),
-                                                 vec.matvec_transposed(inv_inertia, body_cross))))
+    g_body_cross = vec.materialize(vec.along(g_den, vec.add(vec.matvec(inv_inertia, body_cross),
+                                                            vec.matvec_transposed(inv_inertia, body_cross))), params)
     g_arm_cross = vec.matvec(rotation, g_body_cross)
     g_arm = vec.add(g_arm, vec.cross(normal, g_arm_cross))
-    g_rel = keep(vec.add(g_rel, vec.along(g_vn, normal)))
+    g_rel = vec.materialize(vec.add(g_rel, vec.along(g_vn, normal)), params)
     # rel = vel + ω × arm
     g_arm = vec.add(g_arm, vec.cross(g_rel, tuple(map(take, angvel))))
     # arm = arm0 − ½ (height + radius) n, dist = height − radius, height = (pos + arm0)·n − offset
     g_shift = 0.5 * vec.dot(g_arm, normal)
     g_height = g_dist - g_shift
-    (g_height,), g_arm0 = _kept(keep, (g_height,), vec.add(g_arm, vec.along(g_height, normal)))
+    (g_height,), g_arm0 = _stored(params, (g_height,), vec.add(g_arm, vec.along(g_height, normal)))
     local = data["local"]
     rows = dict(
         vel=vec.add(g_rel, g_predicted), angvel=vec.cross(arm, vec.add(g_rel, g_predicted)),
@@ -228,23 +220,22 @@ def _add_parts(a, b):
     return tuple(vec.add((x,), (y,))[0] for x, y in zip(a, b))
 
 
-def _contact_adjoint(fast, record, prepared, stiffness, width, h, quat, force, torque, g_force, g_torque,
-                     g_normals, g_helds, keep):
+def _contact_adjoint(fast, params, record, prepared, h, quat, force, torque, g_force, g_torque, g_normals, g_helds):
     """Cotangents of one substep's contact wrench's inputs (``PlanePenalty._penalty``, spring friction).
 
     Args:
         fast: the model's ``PlanePenalty``.
+        params: Params (penalty_stiffness, penalty_width, and dt for the
+            stored cotangents' branch).
         record: the intermediates ``_penalty`` recorded for this substep.
         prepared: ``fast.prepare(params)``.
-        stiffness, width, h: () penalty stiffness, penalty width (None
-            without the smooth activation) and substep length.
+        h: () substep length.
         quat: 4 parts of (n,), the substep's input orientation.
         force, torque: 3 parts of (n,) external loads.
         g_force, g_torque: 3 parts of (n,), cotangents of the contact force
             and torque on each body.
         g_normals, g_helds: per group, cotangents of the rows' normal force
             and carried friction after the substep.
-        keep: stores a tuple of parts once for all its users.
 
     Returns:
         (g_pos, g_vel, g_quat, g_angvel, g_helds_in, g_force_ext,
@@ -263,8 +254,8 @@ def _contact_adjoint(fast, record, prepared, stiffness, width, h, quat, force, t
                                                   g_helds):
         take = lambda values: _rows(values, group.bodies)
         group_rows, g_held_in = _group_adjoint(
-            model, group, data, rec, record["angvel"], record["predicted_angvel"], stiffness, width, h,
-            tuple(map(take, g_force)), tuple(map(take, g_torque)), g_normal, g_held, keep)
+            model, params, group, data, rec, record["angvel"], record["predicted_angvel"], h,
+            tuple(map(take, g_force)), tuple(map(take, g_torque)), g_normal, g_held)
         for name in sums:
             sums[name] = _add_parts(sums[name], tuple(
                 part if vec.is_zero(part) else _to_bodies(part, group.bodies, num) for part in group_rows[name]))
@@ -319,7 +310,6 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     orientation = model.orientation
     inertia, inv_inertia, inv_mass = prepared["inertia"], prepared["inv_inertia"], prepared["inv_mass"]
     h = params.dt / model.substeps
-    width = params.penalty_width if model.penalty_smooth else None
     state, held = (carry.pos, carry.vel, carry.quat, carry.angvel), carry.friction
     saved = []
     for _ in range(model.substeps):
@@ -343,8 +333,8 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
         g_accel, g_total_torque = unstack(loads[:3], 0), unstack(loads[3:], 0)
         g_total_force = keep(vec.along(inv_mass, g_accel))
         (g_cpos, g_cvel, g_cquat, g_cangvel, g_helds, g_cforce, g_ctorque, contact_body,
-         contact_rows) = _contact_adjoint(fast, record, prepared, params.penalty_stiffness, width, h, quat, force,
-                                          torque, g_total_force, g_total_torque, g_normals, g_helds, keep)
+         contact_rows) = _contact_adjoint(fast, params, record, prepared, h, quat, force, torque, g_total_force,
+                                          g_total_torque, g_normals, g_helds)
         g_state = tuple(_add_parts(a, b) for a, b in zip(g_state, (g_cpos, g_cvel, g_cquat, g_cangvel)))
         g_normals = tuple(jnp.zeros_like(g) for g in g_normals)
         step_body = dict(inv_mass=vec.dot(g_accel, total_force) + contact_body["inv_mass"], inertia=sums["inertia"],
