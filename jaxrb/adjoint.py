@@ -325,7 +325,7 @@ def _merge_leading(tree):
 
 
 def backward_loop_inputs(first, inputs, g_outputs, every: int):
-    """What a backward loop over the steps scans, and how it reads each step's input.
+    """What a backward loop over the steps scans: each step's input state and output cotangent.
 
     Args:
         first: the rollout's initial state (any pytree).
@@ -335,27 +335,24 @@ def backward_loop_inputs(first, inputs, g_outputs, every: int):
         every: the rollout's ``every``.
 
     Returns:
-        ``(input_of, step_inputs, g_steps)``: the loop scans ``step_inputs``
-        (T,) and ``g_steps`` (each step's output cotangent: zero between
-        saved states), and ``input_of(x)`` is the input state of the step
-        whose ``step_inputs`` entry is x.
+        ``(step_inputs, g_steps)``, both (T, ...): step t's input state and
+        the cotangent of its output (zero between saved states).
     """
     if every == 1:
-        # Step t's input is step t − 1's output, read from the trajectory in
-        # the loop: a shifted copy of it cost a pass over T States.
-        def input_of(t):
-            def read(trajectory, start):
-                previous = jax.lax.dynamic_index_in_dim(trajectory, jnp.maximum(t - 1, 0), keepdims=False)
-                return jnp.where(t > 0, previous, start)
+        # Step t's input is step t − 1's output: the trajectory shifted by one
+        # step, copied. Read by index inside the loop instead, a vmapped
+        # trajectory is (worlds, T, ...) and every step's read strided across
+        # it: the tumbler's gradient at 1 024 worlds took 1.18-1.19x as long
+        # (docs/performance.md, section 22).
+        def shifted(trajectory, start):
+            start = jnp.broadcast_to(jnp.asarray(start, trajectory.dtype), trajectory.shape[1:])
+            return jnp.concatenate([start[None], trajectory[:-1]])
 
-            return jax.tree_util.tree_map(read, inputs, first)
-
-        num_steps = jax.tree_util.tree_leaves(g_outputs)[0].shape[0]
-        return input_of, jnp.arange(num_steps), g_outputs
+        return jax.tree_util.tree_map(shifted, inputs, first), g_outputs
     num_saved = jax.tree_util.tree_leaves(g_outputs)[0].shape[0]
     g_steps = _merge_leading(jax.tree_util.tree_map(
         lambda g: jnp.zeros((num_saved, every) + g.shape[1:], g.dtype).at[:, -1].set(g), g_outputs))
-    return (lambda before: before), _merge_leading(inputs), g_steps
+    return _merge_leading(inputs), g_steps
 
 
 def rollout(step: Callable, state: State, params: Params, num_steps: int, every: int,
@@ -409,7 +406,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
 
     def run_backward(residuals, g_states):
         params, first, inputs, applied = residuals
-        input_of, step_inputs, g_steps = backward_loop_inputs(first, inputs, g_states, every)
+        step_inputs, g_steps = backward_loop_inputs(first, inputs, g_states, every)
 
         def keep(parts):
             return vec.materialize(parts, params)
@@ -421,8 +418,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
         # leave the loop per step, as the Wrench of each step needs its own.
         def back(carry, x):
             g_state, sums = carry
-            step_input, g_now, applied_now = x
-            before = input_of(step_input)
+            before, g_now, applied_now = x
             g_after = tuple(vec.add(g, unstack(getattr(g_now, name))) for g, name in zip(g_state, _STATE_VECTORS))
             g_before, step_sums, loads = _step_adjoint(model, params, before, applied_now, g_after, keep)
             if applied is None:

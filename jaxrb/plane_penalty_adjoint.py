@@ -415,7 +415,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
 
     def run_backward(residuals, g_carries):
         params, prepared, first, inputs, applied = residuals
-        input_of, step_inputs, g_steps = free_body.backward_loop_inputs(first, inputs, g_carries, every)
+        step_inputs, g_steps = free_body.backward_loop_inputs(first, inputs, g_carries, every)
 
         def keep(parts):
             return vec.materialize(parts, params)
@@ -430,12 +430,12 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
         # loop per step where they change from step to step.
         def back(carry, x):
             g_state, sums, g_loads = carry
-            step_input, g_now, applied_now = x
+            before, g_now, applied_now = x
             g_after = (_add_parts(g_state[0], g_now.pos), _add_parts(g_state[1], g_now.vel),
                        _add_parts(g_state[2], g_now.quat), _add_parts(g_state[3], g_now.angvel),
                        jax.tree_util.tree_map(jnp.add, g_state[4], g_now.normal_force),
                        jax.tree_util.tree_map(jnp.add, g_state[5], g_now.friction))
-            g_before, body, rows, g_force, g_torque = step_adjoint(input_of(step_input), g_after, applied_now)
+            g_before, body, rows, g_force, g_torque = step_adjoint(before, g_after, applied_now)
             sums = jax.tree_util.tree_map(jnp.add, sums, (body, rows))
             step_loads = (jnp.stack(g_force, -1), jnp.stack(g_torque, -1))
             if per_step:
