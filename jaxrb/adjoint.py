@@ -342,7 +342,7 @@ def backward_loop_inputs(first, inputs, g_outputs, every: int):
         # Step t's input is step t − 1's output: the trajectory shifted by one
         # step, copied. Read by index inside the loop instead, a vmapped
         # trajectory is (worlds, T, ...) and every step's read strided across
-        # it: the tumbler's gradient at 1 024 worlds took 1.18-1.19x as long
+        # it: the tumbler's gradient at 1 024 worlds took 1.19-1.20x as long
         # (docs/performance.md, section 22).
         def shifted(trajectory, start):
             start = jnp.broadcast_to(jnp.asarray(start, trajectory.dtype), trajectory.shape[1:])
