@@ -9,7 +9,7 @@ import pytest
 from jaxrb.bench import gradients
 
 TINY = dict(gradient_scenes=("tumble",), gradient_memory_steps=(1000,), gradient_time_steps=1000,
-            gradient_batch=4, repeats=2)
+            gradient_batch=4, gradient_rounds=2)
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ SETTINGS = {
                   throughput_steps=1000, num_bodies=8,
                   contact_scenes=("bounce", "slide", "drop"), contact_batches=(64, 16),
                   contact_steps=100, gradient_scenes=("tumble",), gradient_memory_steps=(1000,),
-                  gradient_time_steps=1000, gradient_batch=64),
+                  gradient_time_steps=1000, gradient_batch=64, gradient_rounds=21),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,

@@ -84,9 +84,18 @@ METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": d
 
 #: What :func:`run` does by default; ``python -m jaxrb.bench`` passes its own.
 #: ``gradient_batch``: worlds of the batched time rows (None: none).
+#: ``gradient_rounds``: timed rounds of forward and gradient at most, fewer
+#: (at least 3) once :data:`TIME_BUDGET_S` is spent. A one-world round takes
+#: milliseconds, and on a noisy host the median of 5 of them was no figure:
+#: ten medians of 5 in one process spread over 2.3-3.9x for the penalty box
+#: drop's adjoint, whose medians of 201 read 3.2-3.8x in three processes
+#: (docs/performance.md, section 22).
 DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
                         gradient_memory_steps=(1000, 10000), gradient_time_steps=1000, gradient_batch=1024,
-                        repeats=5, gradient_dtype="float32")
+                        gradient_rounds=201, gradient_dtype="float32")
+
+#: Seconds of timed calls after which :func:`gradient_time` stops adding rounds.
+TIME_BUDGET_S = 5.0
 
 #: The issue's target for grad / forward.
 TARGET_RATIO = 3.0
@@ -174,7 +183,7 @@ def gradient_memory(name: str, num_steps: int, method: str = "autodiff", dtype="
 
 def gradient_time(name: str, num_steps: int, repeats: int = 5, dtype="float32",
                   methods: Sequence[str] = ("autodiff", "checkpoint", "adjoint"), batch: int = 1,
-                  budget_s: float = 5.0, log=None) -> list:
+                  budget_s: float = TIME_BUDGET_S, log=None) -> list:
     """Time the forward loss and its gradient over ``num_steps`` steps.
 
     For each method the forward and the gradient are timed in turn, call by
@@ -225,7 +234,7 @@ def run(settings: Optional[dict] = None, log=None) -> list:
             default): ``gradient_scenes``, ``gradient_memory_steps`` (T
             values for memory), ``gradient_time_steps`` (T for timing, whose
             memory comes from the same compiled programs),
-            ``gradient_batch``, ``repeats``, ``gradient_dtype``. Other keys
+            ``gradient_batch``, ``gradient_rounds``, ``gradient_dtype``. Other keys
             are ignored, so the command line's whole settings dict can be
             passed.
         log: optional ``log(text)`` for progress.
@@ -240,12 +249,12 @@ def run(settings: Optional[dict] = None, log=None) -> list:
     time_steps, dtype = settings["gradient_time_steps"], settings["gradient_dtype"]
     times, memories = [], []
     for name in settings["gradient_scenes"]:
-        timed = gradient_time(name, time_steps, repeats=settings["repeats"], dtype=dtype, log=log)
+        timed = gradient_time(name, time_steps, repeats=settings["gradient_rounds"], dtype=dtype, log=log)
         times += [row for row in timed if row["kind"] == "time"]
         memories += [row for row in timed if row["kind"] == "memory"]
         methods = [row["method"] for row in timed if row["kind"] == "time"]
         if settings["gradient_batch"] and "adjoint" in methods:
-            times += gradient_time(name, time_steps, repeats=settings["repeats"], dtype=dtype,
+            times += gradient_time(name, time_steps, repeats=settings["gradient_rounds"], dtype=dtype,
                                    methods=("autodiff", "adjoint"), batch=settings["gradient_batch"], log=log)
         for num_steps in settings["gradient_memory_steps"]:
             if num_steps == time_steps:
@@ -327,8 +336,9 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         "the whole rollout (`rb.rollout`, every step kept). *grad / forward*: median run time of the "
         f"jitted gradient over that of the jitted forward loss, T = {settings['gradient_time_steps']} "
         "(target ≤ 3×), the two called in turn so they share the host's fast and slow spells (each "
-        "row times its own forward). *method*: `autodiff` is `rb.rollout`'s reverse mode, "
-        "`checkpoint` the same with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
+        f"row times its own forward), up to {settings['gradient_rounds']} rounds after a warm-up, fewer "
+        f"(at least 3) once {TIME_BUDGET_S:g} s of calls are spent. *method*: `autodiff` is `rb.rollout`'s "
+        "reverse mode, `checkpoint` the same with `checkpoint=True`, `adjoint` is `rb.rollout(..., adjoint=True)`, the hand-written "
         "adjoint of 3D semi-implicit free bodies and of penalty contact against planes (`jaxrb.adjoint`, "
         "`jaxrb.plane_penalty_adjoint`; none for impulse contact). *batch*: worlds "
         "(`vmap` over the initial state, Params shared, the loss their mean). *temp memory*: "
