@@ -87,7 +87,7 @@ METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": d
 #: ``gradient_rounds``: timed rounds of forward and gradient at most, fewer
 #: (at least 3) once :data:`TIME_BUDGET_S` is spent. A one-world round takes
 #: milliseconds, and on a noisy host the median of 5 of them was no figure:
-#: ten medians of 5 in one process spread over 2.3-3.9x for the penalty box
+#: ten medians of 5 in one process spread over 2.3-3.8x for the penalty box
 #: drop's adjoint, whose medians of 201 read 3.2-3.8x in three processes
 #: (docs/performance.md, section 22).
 DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
