@@ -372,8 +372,9 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
         ``rb.rollout``'s for free bodies (to float rounding for penalty
         contact: :mod:`jaxrb.plane_penalty_adjoint`). Reverse mode keeps every
         step's input State (T States, as ``rb.rollout`` without segments;
-        with ``every=1`` these are the trajectory itself). Forward mode
-        raises (``jax.custom_vjp``).
+        with ``every=1`` these are the trajectory itself, which the backward
+        pass copies shifted by a step: :func:`backward_loop_inputs`). Forward
+        mode raises (``jax.custom_vjp``).
     """
     model = step.model
     if not _supports_free_bodies(model):
