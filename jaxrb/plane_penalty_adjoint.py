@@ -143,7 +143,7 @@ def _group_adjoint(model, params, group, data, rec, angvel, predicted_angvel, h,
     g_elastic = vec.add(g_applied, g_kept)
     g_slip = vec.along(-damper, g_applied)
     (g_limit, g_damper), g_elastic, g_slip = _stored(params, (g_limit_a + g_limit_k, -vec.dot(g_applied, slip)),
-                                                   g_elastic, g_slip)
+                                                     g_elastic, g_slip)
     g_normal = g_normal + data["friction"] * g_limit
     g_friction = rec["normal_force"] * g_limit
     # elastic = held − k h T(rel): held is the carried friction, projected.
@@ -181,7 +181,7 @@ def _group_adjoint(model, params, group, data, rec, angvel, predicted_angvel, h,
         g_penetration = _max_slope(penetration) * g_activation
         g_width = None
     (g_dist, g_normal_mass, g_vn, g_stiffness, g_h), = _stored(params, (-g_penetration, g_normal_mass, g_vn,
-                                                                     g_stiffness, g_h))
+                                                                        g_stiffness, g_h))
     # m_n = 1 / (1/m + cᵀ I⁻¹ c) / sharing, c = Rᵀ (arm × n)
     arm_cross = vec.cross(arm, normal)
     body_cross = vec.matvec_transposed(rotation, arm_cross)
