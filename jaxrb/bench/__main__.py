@@ -13,8 +13,10 @@ import sys
 SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
             "smoothing")
 
-#: What each mode runs. ``quick`` is meant to finish well inside two minutes on
-#: two CPU cores; ``full`` inside about ten.
+#: What each mode runs. On the 2-core host of docs/benchmarks.md ``quick`` took
+#: 7.8 minutes with the peers installed (2.7 of them the peers section) and
+#: about 5 without; compiling its programs is most of it. ``full`` took
+#: about 45 minutes (docs/benchmarks.md's section wall times).
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60, 1 / 240), tumble_horizon=6.0, repeats=3,
                   throughput_integrators=("semi_implicit", "rk4"), batches=(1, 64),
@@ -40,7 +42,7 @@ def parse_args(argv=None):
                     "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and time, and the "
                     "smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
-                        help="fewer configurations and shorter horizons (well under 2 minutes)")
+                        help="fewer configurations and shorter horizons (5-8 minutes on 2 cores, mostly compiling)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="directory for report.md (default: bench_out)")
     parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS),
