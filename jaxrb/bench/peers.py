@@ -1086,7 +1086,7 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
     ]
     titles = {
         "drop": (f"0.2 m box, 1 kg, released at z = {DROP_CENTRE} m, μ = {FRICTION}; peers at h = 2 ms, "
-                 f"jaxrb at its own setting and at h = 2 ms; {settings['peers_drop_steps']} steps; rest "
+                 f"jaxrb at the settings its rows name; {settings['peers_drop_steps']} steps; rest "
                  "error after the rollout."),
         "stack": (f"{STACK_COUNT} boxes (0.2 m, 1 kg) in a column, {settings['peers_stack_seconds']:g} s; "
                   "sink = how far the top box ends below its height with every box touching (mean over "
