@@ -188,6 +188,12 @@ def test_contact_status_resting_colliding_separating():
     final = jax.tree_util.tree_map(lambda x: x[-1], settled)
     contacts = rb.detect_contacts(model, params, final)
     assert set(np.asarray(contacts.status[contacts.active]).tolist()) == {rb.RESTING}
+    # Called outside jit, it ran op by op (seconds of compiling per call site): now
+    # one compiled program per Model, whatever the state.
+    assert rb.detect_contacts._cache_size() >= 1
+    before = rb.detect_contacts._cache_size()
+    rb.detect_contacts(model, params, state.replace(pos=state.pos + 0.01))
+    assert rb.detect_contacts._cache_size() == before
 
 
 @pytest.mark.parametrize("contact,settings", [
