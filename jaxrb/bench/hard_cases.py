@@ -129,7 +129,7 @@ FULL = {name: {} for name in CASES}
 QUICK = {
     "tallest_stack": dict(heights=(3,), required=3, seconds=3.0),
     "pyramid_2d": dict(rows=4, seconds=3.0),
-    "mass_ratio": dict(ratios=(100.0, 1000.0), substeps=(8, 32), seconds=3.0),
+    "mass_ratio": dict(ratios=(100.0,), substeps=(8,), seconds=3.0),
     "impact": dict(speeds=(10.0, 100.0, 300.0)),
     "spin": dict(seconds=3.0, others=("semi_implicit", "euler")),
     "overlap_recovery": dict(rows=4, seconds=3.0),
@@ -573,9 +573,11 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
     """Case 4: the fastest downward impact on a plane that does not tunnel.
 
     Both bodies start with the lowest point ``gap`` above the plane and speed v
-    straight down (all speeds in one vmapped batch per setting of
-    ``time_of_impact``); a body holds when its centre ends above the plane
-    after ``seconds``.
+    straight down; a body holds when its centre ends above the plane after
+    ``seconds``. Each speed is a one-world run of the same compiled rollout
+    (one compile per setting of ``time_of_impact``): ``vmap`` over the speeds
+    compiled more than twice as long (12.2 against 5.8 s without time of
+    impact, 20.1 against 8.9 s with it) to save milliseconds of running.
 
     Args:
         out_dir: folder for ``hard_impact.png``.
@@ -595,17 +597,19 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
     for toi in settings["time_of_impact"]:
         model, params, state = impact_scene().build(time_of_impact=bool(toi), **settings["build"])
         dtype = state.pos.dtype
-        batch = len(speeds)
-        pos = np.broadcast_to(np.asarray(state.pos), (batch,) + state.pos.shape).copy()
-        pos[:, :, 2] = HALF + settings["gap"]
-        vel = np.zeros((batch,) + state.vel.shape)
-        vel[:, :, 2] = -speeds[:, None]
-        batched = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), state)
-        batched = batched.replace(pos=jnp.asarray(pos, dtype), vel=jnp.asarray(vel, dtype))
         num_steps = _steps(settings["seconds"], float(params.dt))
-        trace = simulate(model, params, batched, num_steps, 1, num_steps, batched=True)
-        compile_s += trace.compile_s
-        final_z = trace.pos[-1, :, :, 2]  # (speeds, bodies)
+        traces = []
+        for speed in speeds:
+            pos = np.asarray(state.pos).copy()
+            pos[:, 2] = HALF + settings["gap"]
+            vel = np.zeros(state.vel.shape)
+            vel[:, 2] = -speed
+            thrown = state.replace(pos=jnp.asarray(pos, dtype), vel=jnp.asarray(vel, dtype))
+            traces.append(simulate(model, params, thrown, num_steps, 1, num_steps))
+            compile_s += traces[-1].compile_s
+        times = traces[0].times
+        heights = np.stack([trace.pos[:, :, 2] for trace in traces], axis=1)  # (T, speeds, bodies)
+        final_z = heights[-1]  # (speeds, bodies)
         for body, name in enumerate(("sphere", "box")):
             holds = np.isfinite(final_z[:, body]) & (final_z[:, body] > 0.0)
             holding = [float(v) for v, ok in zip(speeds, holds) if ok]
@@ -614,12 +618,12 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
             # Stricter: every speed up to v also comes to rest on the plane (e = 0, no rebound).
             rests = np.isfinite(final_z[:, body]) & (np.abs(final_z[:, body] - HALF) < REST_TOL)
             resting[(name, bool(toi))] = _fastest_passing(speeds, rests)
-            curves[(name, bool(toi))] = (trace.times, trace.pos[:, :, body, 2])
+            curves[(name, bool(toi))] = (times, heights[:, :, body])
             for v, ok, z in zip(speeds, holds, final_z[:, body]):
                 rows.append(dict(body=name, time_of_impact=bool(toi), speed=float(v), holds=bool(ok),
                                  final_z=float(z), rests=bool(abs(z - HALF) < REST_TOL)))
             _log(log, f"hard impact {name:>6} toi={str(bool(toi)):<5}: holds at {holding} m/s, "
-                      f"fastest before the first tunnel {fastest[(name, bool(toi))]:g} m/s (compile {trace.compile_s:.1f} s)")
+                      f"fastest before the first tunnel {fastest[(name, bool(toi))]:g} m/s (compile {traces[0].compile_s:.1f} s)")
     sphere_ok = (("sphere", True) not in fastest) or fastest[("sphere", True)] >= float(speeds.max())
     box_key = ("box", False) if ("box", False) in fastest else ("box", True)
     passed = sphere_ok and fastest[box_key] >= settings["required_box_speed"]
