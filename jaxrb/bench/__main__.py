@@ -13,17 +13,18 @@ import sys
 SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
             "smoothing")
 
-#: What each mode runs. On the 2-core host of docs/benchmarks.md ``quick`` took
-#: 7.8 minutes with the peers installed (2.7 of them the peers section) and
-#: about 5 without; compiling its programs is most of it. ``full`` took
-#: about 45 minutes (docs/benchmarks.md's section wall times).
+#: What each mode runs. ``quick`` shows every section at one or two settings
+#: of each kind (the sections' own QUICK settings say which): on the 2-core host
+#: of docs/benchmarks.md it took 3.4 minutes with the peers installed (0.8 of
+#: them the peers section) and about 2.7 without; compiling its programs is most
+#: of it. ``full`` took about 45 minutes (docs/benchmarks.md's section wall times).
 SETTINGS = {
-    "quick": dict(tumble_steps=(1 / 60, 1 / 240), tumble_horizon=6.0, repeats=3,
+    "quick": dict(tumble_steps=(1 / 60,), tumble_horizon=6.0, repeats=3,
                   throughput_integrators=("semi_implicit", "rk4"), batches=(1, 64),
                   throughput_steps=1000, num_bodies=8,
-                  contact_scenes=("bounce", "slide", "drop"), contact_batches=(64, 16),
+                  contact_scenes=("bounce",), contact_batches=(64, 16),
                   contact_steps=100, gradient_scenes=("tumble",), gradient_memory_steps=(1000,),
-                  gradient_time_steps=1000, gradient_batch=64, gradient_rounds=21),
+                  gradient_time_steps=1000, gradient_batch=None, gradient_rounds=21),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
@@ -42,7 +43,8 @@ def parse_args(argv=None):
                     "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and time, and the "
                     "smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
-                        help="fewer configurations and shorter horizons (5-8 minutes on 2 cores, mostly compiling)")
+                        help="one or two configurations of each kind and shorter horizons (about 3 minutes on 2 cores, "
+                             "mostly compiling)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="directory for report.md (default: bench_out)")
     parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS),
@@ -86,7 +88,9 @@ def main(argv=None) -> int:
         "gradients": (f"scenes {', '.join(settings['gradient_scenes'])}, memory at T = "
                       f"{', '.join(map(str, settings['gradient_memory_steps']))} for autodiff (with and "
                       f"without checkpointing) and the hand-written adjoint, time at T = "
-                      f"{settings['gradient_time_steps']} at 1 and {settings['gradient_batch']} worlds, float32"),
+                      f"{settings['gradient_time_steps']} at 1"
+                      + (f" and {settings['gradient_batch']}" if settings["gradient_batch"] else "")
+                      + " worlds, float32"),
         "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
                       f"{', '.join(settings['smoothing_sweeps'])}, float64"),
         "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: every "

@@ -55,7 +55,8 @@ MuJoCo's C rollout loop); ``stack_batch``/``stack_seconds``/``stack_mjx`` and
 this batch, for the pymunk target; ``None`` to skip), ``pyramid_big_seconds``
 and ``pyramid_jaxrb``; ``flip_steps``,
 ``flip_horizon`` and ``flip_configs`` (jaxrb (integrator, orientation) pairs;
-the best per h counts); ``repeats``/``budget_s`` for timing; ``with_jaxrb``
+the best per h counts), ``flip_mjx`` (False: MJX's flip skipped);
+``repeats``/``budget_s`` for timing; ``with_jaxrb``
 (False: peers only).
 
 Installed together (checked with ``pip check``) on Python 3.11 with jax and
@@ -143,12 +144,15 @@ STANDING_SETTINGS = {
                 "pyramid": (PEER_STEP, 1, dict(PYRAMID_BUILD, contact="penalty"))},
 }
 
-#: QUICK runs jaxrb's penalty rows only (the contact model the speed targets
-#: are met with) and the flip at one h: compiling is most of the section's
-#: time, and with the impulse rows and a second h it took 238 s on the 2-core
-#: host, against 161 s without.
+#: QUICK runs the box drop (jaxrb's penalty row against MuJoCo C, MJX and Brax
+#: spring, the peers of its targets) and the flip at one h (jaxrb's RK4s against
+#: MuJoCo C); the stack, the pyramid, Brax positional, Jax2D, pymunk and MJX's
+#: flip are in the full run only. Compiling is most of the section's time: the
+#: peers' programs alone compile for 8-24 s each (Brax positional's drop 24 s,
+#: Jax2D's pyramid 21 s, Brax spring's stack 15 s), and with all four scenes
+#: the quick section took 161 s on the 2-core host.
 QUICK = dict(
-    peers_scenes=("drop", "stack", "pyramid", "flip"), peers_engines=ENGINES,
+    peers_scenes=("drop", "flip"), peers_engines=("mujoco", "mjx", "brax_spring"),
     peers_drop_batch=64, peers_drop_steps=500, peers_mujoco_worlds=16,
     peers_drop_jaxrb=tuple(row for row in DROP_JAXRB if row[0] == "penalty"),
     peers_stack_batch=4, peers_stack_seconds=1.0, peers_stack_mjx=False,
@@ -156,7 +160,7 @@ QUICK = dict(
     peers_pyramid_batch=4, peers_pyramid_seconds=1.0, peers_pyramid_big_batch=None,
     peers_pyramid_big_seconds=1.0, peers_pyramid_jaxrb=("penalty",),
     peers_flip_steps=(1 / 60,), peers_flip_horizon=6.0,
-    peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")),
+    peers_flip_configs=(("rk4", None), ("rk4_body", None)), peers_flip_mjx=False,
     peers_repeats=2, peers_budget_s=3.0, peers_with_jaxrb=True,
 )
 FULL = dict(
@@ -169,7 +173,7 @@ FULL = dict(
     peers_pyramid_big_seconds=1.0,  # the batch-256 run is for speed; standing is judged at peers_pyramid_batch
     peers_pyramid_jaxrb=("impulse", "penalty"),
     peers_flip_steps=(1 / 60, 1 / 240, 1 / 1000), peers_flip_horizon=20.0,
-    peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")),
+    peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")), peers_flip_mjx=True,
     peers_repeats=3, peers_budget_s=5.0, peers_with_jaxrb=True,
 )
 
@@ -977,7 +981,8 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
                         i, o, hh, horizon, d, reference, settings))
             attempt("mujoco", "flip", lambda hh=h: mujoco_flip(modules["mujoco"], hh, horizon, reference,
                                                                settings))
-            attempt("mjx", "flip", lambda hh=h: mjx_flip(modules["mjx"], hh, horizon, reference, settings))
+            if settings["peers_flip_mjx"]:
+                attempt("mjx", "flip", lambda hh=h: mjx_flip(modules["mjx"], hh, horizon, reference, settings))
     return rows, skipped
 
 
@@ -1110,6 +1115,12 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
     if skipped:
         parts += ["**Skipped**: " + "; ".join(f"{ENGINE_NAMES.get(k, k)}: {v}" for k, v in skipped.items())
                   + ". Install the peers with `pip install -e \".[peers]\"`."]
+    left_out = [SCENE_TITLES[scene] for scene in SCENE_TITLES if scene not in settings["peers_scenes"]]
+    left_out += [ENGINE_NAMES[engine] for engine in ENGINES if engine not in settings["peers_engines"]]
+    if not settings["peers_flip_mjx"] and "mjx" in settings["peers_engines"]:
+        left_out.append("MJX's flip")
+    if left_out:
+        parts.append(f"**Not run with these settings**: {', '.join(left_out)} (the full run has them).")
     return "\n\n".join(p for p in parts if p != "").replace("\n\n\n", "\n\n")
 
 
