@@ -15,8 +15,8 @@ SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "con
 
 #: What each mode runs. ``quick`` shows every section at one or two settings
 #: of each kind (the sections' own QUICK settings say which): on the 2-core host
-#: of docs/benchmarks.md it took 3.4 minutes with the peers installed (0.8 of
-#: them the peers section) and about 2.7 without; compiling its programs is most
+#: of docs/benchmarks.md it took 3.4-3.7 minutes with the peers installed (0.8 of
+#: them the peers section) and about 2.8 without; compiling its programs is most
 #: of it. ``full`` took about 45 minutes (docs/benchmarks.md's section wall times).
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60,), tumble_horizon=6.0, repeats=3,
