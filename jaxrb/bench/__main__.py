@@ -68,6 +68,8 @@ def main(argv=None) -> int:
     from jaxrb.bench import speed_error
 
     speed_error_settings = speed_error.QUICK if args.quick else speed_error.FULL
+    speed_error_count = sum(len(speed_error_settings["speed_error_configs"][name])
+                            for name in speed_error_settings["speed_error_scenes"])
     log = free_body.stderr_log
     report = Report("jaxrb benchmark report")
     report.heading("Machine and settings")
@@ -93,9 +95,11 @@ def main(argv=None) -> int:
                       + " worlds, float32"),
         "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
                       f"{', '.join(settings['smoothing_sweeps'])}, float64"),
-        "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: every "
-                        "integrator / contact model / step / substeps / iterations, error against the "
-                        "closed form, cost at batch 1 and body-steps/s at batch 1024"),
+        "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: "
+                        f"{speed_error_count} configurations "
+                        "(integrator / contact model / step / substeps / iterations), error against the "
+                        "closed form, cost at batch 1 and body-steps/s at batch "
+                        f"{speed_error_settings['speed_error_batch']}"),
         "hard_cases": ("tallest 3D stack, 2D pyramid, mass ratios, fastest impact, fast spin, "
                        "overlap recovery, long rest (small sizes with --quick)"),
         "peers": ("the same scenes in each installed peer (pip install -e \".[peers]\"), "
