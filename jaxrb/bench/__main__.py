@@ -90,9 +90,9 @@ def main(argv=None) -> int:
         "gradients": (f"scenes {', '.join(settings['gradient_scenes'])}, memory at T = "
                       f"{', '.join(map(str, settings['gradient_memory_steps']))} for autodiff (with and "
                       f"without checkpointing) and the hand-written adjoint, time at T = "
-                      f"{settings['gradient_time_steps']} at 1"
-                      + (f" and {settings['gradient_batch']}" if settings["gradient_batch"] else "")
-                      + " worlds, float32"),
+                      f"{settings['gradient_time_steps']} at "
+                      + (f"1 and {settings['gradient_batch']} worlds" if settings["gradient_batch"] else "one world")
+                      + ", float32"),
         "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
                       f"{', '.join(settings['smoothing_sweeps'])}, float64"),
         "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: "
