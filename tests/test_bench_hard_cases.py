@@ -21,7 +21,7 @@ RATIO = dict(ratios=(100.0,), substeps=(8, 16), seconds=2.0)
 REST = dict(count=3, num_steps=240)
 PYRAMID = dict(rows=3, seconds=2.0)
 OVERLAP = dict(rows=3, seconds=2.0)
-IMPACT = dict(speeds=(10.0,), time_of_impact=(False,), required_box_speed=10.0)
+IMPACT = dict(speeds=(10.0, 30.0), time_of_impact=(False,), required_box_speed=10.0)
 SPIN = dict(seconds=1.0, others=())
 
 
@@ -96,7 +96,9 @@ def test_overlap_recovery_fails_when_push_out_becomes_velocity():
 
 def test_impact_holds_and_fails_without_contact():
     good = hc.impact(**IMPACT)
-    assert good.passed and good.measured["box_fastest_mps"] == 10.0, good.measured_text
+    assert good.passed and good.measured["box_fastest_mps"] == 30.0, good.measured_text
+    assert sorted((row["body"], row["speed"]) for row in good.rows) == [
+        ("box", 10.0), ("box", 30.0), ("sphere", 10.0), ("sphere", 30.0)]
     assert all(row["final_z"] > 0.05 for row in good.rows)
     broken = hc.impact(**IMPACT, build=dict(contact="none"))
     assert not broken.passed and broken.measured["box_fastest_mps"] == 0.0, broken.measured_text
