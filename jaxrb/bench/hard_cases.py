@@ -598,13 +598,14 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
         model, params, state = impact_scene().build(time_of_impact=bool(toi), **settings["build"])
         dtype = state.pos.dtype
         num_steps = _steps(settings["seconds"], float(params.dt))
+        pos = np.asarray(state.pos).copy()
+        pos[:, 2] = HALF + settings["gap"]
+        state = state.replace(pos=jnp.asarray(pos, dtype))
         traces = []
         for speed in speeds:
-            pos = np.asarray(state.pos).copy()
-            pos[:, 2] = HALF + settings["gap"]
             vel = np.zeros(state.vel.shape)
             vel[:, 2] = -speed
-            thrown = state.replace(pos=jnp.asarray(pos, dtype), vel=jnp.asarray(vel, dtype))
+            thrown = state.replace(vel=jnp.asarray(vel, dtype))
             traces.append(simulate(model, params, thrown, num_steps, 1, num_steps))
             compile_s += traces[-1].compile_s
         times = traces[0].times
