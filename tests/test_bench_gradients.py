@@ -91,6 +91,13 @@ def test_markdown_has_one_line_per_row(rows):
     assert "temp memory" in text and "×" in text and "target" in text
 
 
+def test_only_the_methods_asked_for_run():
+    rows = gradients.run({**TINY, "gradient_methods": ("autodiff",), "gradient_batch": None})
+    assert [(row["kind"], row["method"]) for row in rows] == [("time", "autodiff"), ("memory", "autodiff")]
+    with pytest.raises(ValueError, match="gradient_methods.*'adjoin'"):
+        gradients.run({**TINY, "gradient_methods": ("autodiff", "adjoin")})
+
+
 def test_unknown_scene_is_a_value_error():
     with pytest.raises(ValueError, match="stack"):
         gradients.build("stack")

@@ -82,8 +82,11 @@ SCENES = {
 #: How reverse mode is taken: method -> rollout keywords (see the module docs).
 METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": dict(adjoint=True)}
 
-#: What :func:`run` does by default; ``python -m jaxrb.bench`` passes its own.
-#: ``gradient_batch``: worlds of the batched time rows (None: none).
+#: What :func:`run` does by default: the full run of ``python -m jaxrb.bench``
+#: (its quick mode overrides some).
+#: ``gradient_methods``: keys of :data:`METHODS` to time and size (``adjoint``
+#: only where the scene has one). ``gradient_batch``: worlds of the batched time
+#: rows (None: none), autodiff and adjoint only.
 #: ``gradient_rounds``: timed rounds of forward and gradient at most, fewer
 #: (at least 3) once :data:`TIME_BUDGET_S` is spent. A one-world round takes
 #: milliseconds, and on a noisy host the median of 5 of them was no figure:
@@ -91,7 +94,8 @@ METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": d
 #: drop's adjoint, whose medians of 201 read 3.2-3.8x in three processes
 #: (docs/performance.md, section 22).
 DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
-                        gradient_memory_steps=(1000, 10000), gradient_time_steps=1000, gradient_batch=1024,
+                        gradient_methods=tuple(METHODS), gradient_memory_steps=(1000, 10000),
+                        gradient_time_steps=1000, gradient_batch=1024,
                         gradient_rounds=201, gradient_dtype="float32")
 
 #: Seconds of timed calls after which :func:`gradient_time` stops adding rounds.
@@ -231,7 +235,7 @@ def run(settings: Optional[dict] = None, log=None) -> list:
 
     Args:
         settings: keys of :data:`DEFAULT_SETTINGS` (missing ones take the
-            default): ``gradient_scenes``, ``gradient_memory_steps`` (T
+            default): ``gradient_scenes``, ``gradient_methods``, ``gradient_memory_steps`` (T
             values for memory), ``gradient_time_steps`` (T for timing, whose
             memory comes from the same compiled programs),
             ``gradient_batch``, ``gradient_rounds``, ``gradient_dtype``. Other keys
@@ -245,17 +249,22 @@ def run(settings: Optional[dict] = None, log=None) -> list:
         rows ordered by scene, T, method.
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
+    unknown = sorted(set(settings["gradient_methods"]) - set(METHODS))
+    if unknown:
+        raise ValueError(f"gradients: unknown 'gradient_methods' {unknown}; valid: {', '.join(METHODS)}")
     log = log or (lambda text: None)
     time_steps, dtype = settings["gradient_time_steps"], settings["gradient_dtype"]
     times, memories = [], []
     for name in settings["gradient_scenes"]:
-        timed = gradient_time(name, time_steps, repeats=settings["gradient_rounds"], dtype=dtype, log=log)
+        timed = gradient_time(name, time_steps, repeats=settings["gradient_rounds"], dtype=dtype,
+                              methods=settings["gradient_methods"], log=log)
         times += [row for row in timed if row["kind"] == "time"]
         memories += [row for row in timed if row["kind"] == "memory"]
         methods = [row["method"] for row in timed if row["kind"] == "time"]
         if settings["gradient_batch"] and "adjoint" in methods:
             times += gradient_time(name, time_steps, repeats=settings["gradient_rounds"], dtype=dtype,
-                                   methods=("autodiff", "adjoint"), batch=settings["gradient_batch"], log=log)
+                                   methods=[m for m in methods if m in ("autodiff", "adjoint")],
+                                   batch=settings["gradient_batch"], log=log)
         for num_steps in settings["gradient_memory_steps"]:
             if num_steps == time_steps:
                 continue  # measured above from the timed programs
