@@ -24,6 +24,20 @@ def test_every_section_has_a_runner_and_a_settings_line(monkeypatch, tmp_path):
     assert all(math.isfinite(rate) and rate > 0 for rate in rates)
 
 
+def test_tumbling_runs_the_integrator_settings_it_is_given(monkeypatch, tmp_path):
+    # One setting over the first flip (at 3.69 s): its row, and no other.
+    monkeypatch.setitem(bench_main.SETTINGS["quick"], "tumble_configs", (("rk4_body", None),))
+    monkeypatch.setitem(bench_main.SETTINGS["quick"], "tumble_horizon", 5.0)
+    assert bench_main.main(["--quick", "--only", "tumbling", "--out", str(tmp_path)]) == 0
+    report = (tmp_path / "report.md").read_text()
+    assert "**tumbling**: integrators rk4_body, h ∈ {1/60} s" in report
+    rows = [line.split("|")[1:-1] for line in report.splitlines() if re.match(r"\| (euler|semi|implicit|rk4)", line)]
+    assert [row[0].strip() for row in rows] == ["rk4_body"]
+    flips, error_f64, error_f32 = (cell.strip() for cell in rows[0][3:6])
+    # Both dtypes find the flip well inside the float32 target of 5 ms.
+    assert flips == "1/1" and float(error_f64) < 5e-3 and float(error_f32) < 5e-3
+
+
 def test_unknown_section_is_refused():
     with pytest.raises(SystemExit):
         bench_main.main(["--only", "nonsense"])

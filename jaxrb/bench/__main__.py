@@ -15,24 +15,26 @@ SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "con
 
 #: What each mode runs. ``quick`` shows every section at one or two settings
 #: of each kind (the sections' own QUICK settings say which): on the 2-core host
-#: of docs/benchmarks.md it took 3.4-3.7 minutes with the peers installed (0.8 of
-#: them the peers section) and about 2.8 without; compiling its programs is most
-#: of it. ``full`` took about 45 minutes (docs/benchmarks.md's section wall times).
+#: of docs/benchmarks.md it took 2.7-2.8 minutes with the peers installed (0.7 of
+#: them the peers section) and about 2 without; compiling its programs is most
+#: of it (docs/performance.md, sections 25 and 26). ``full`` took about 45 minutes
+#: (docs/benchmarks.md's section wall times); its gradient settings are
+#: gradients.DEFAULT_SETTINGS.
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60,), tumble_horizon=6.0, repeats=3,
-                  throughput_integrators=("semi_implicit", "rk4"), batches=(1, 64),
+                  tumble_configs=(("semi_implicit", "exp_map"), ("implicit_gyro", "exp_map"), ("rk4", None),
+                                  ("rk4_body", None)),
+                  throughput_integrators=("semi_implicit",), batches=(1, 64),
                   throughput_steps=1000, num_bodies=8,
                   contact_scenes=("bounce",), contact_batches=(64, 16),
-                  contact_steps=100, gradient_scenes=("tumble",), gradient_memory_steps=(1000,),
-                  gradient_time_steps=1000, gradient_batch=None, gradient_rounds=21),
+                  contact_steps=100, gradient_scenes=("tumble",), gradient_methods=("autodiff", "adjoint"),
+                  gradient_memory_steps=(1000,), gradient_batch=None, gradient_rounds=21),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
+                 tumble_configs=None,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
                  contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
-                 contact_batches=(1024, 16), contact_steps=100,
-                 gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
-                 gradient_memory_steps=(1000, 10000),
-                 gradient_time_steps=1000, gradient_batch=1024),
+                 contact_batches=(1024, 16), contact_steps=100),
 }
 
 
@@ -40,10 +42,10 @@ def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog="python -m jaxrb.bench",
         description="jaxrb benchmarks: speed against error on scenes with closed forms, "
-                    "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and time, and the "
-                    "smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
+                    "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and "
+                    "time, and the smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
-                        help="one or two configurations of each kind and shorter horizons (about 3 minutes on 2 cores, "
+                        help="one or two configurations of each kind and shorter horizons (under 3 minutes on 2 cores, "
                              "mostly compiling)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="directory for report.md (default: bench_out)")
@@ -59,12 +61,12 @@ def main(argv=None) -> int:
     # float64 for the accuracy runs; float32 runs ask for their dtype explicitly.
     jax.config.update("jax_enable_x64", True)
 
-    from jaxrb.bench import free_body, smoothing
+    from jaxrb.bench import free_body, gradients, smoothing
     from jaxrb.bench.report import Report, bullet_list, fmt_step, machine_info
     from jaxrb.bench.timing import Stopwatch
 
     mode = "quick" if args.quick else "full"
-    settings = {**SETTINGS[mode], **smoothing.SETTINGS[mode]}
+    settings = {**gradients.DEFAULT_SETTINGS, **SETTINGS[mode], **smoothing.SETTINGS[mode]}
     from jaxrb.bench import speed_error
 
     speed_error_settings = speed_error.QUICK if args.quick else speed_error.FULL
@@ -77,7 +79,9 @@ def main(argv=None) -> int:
     info.update({
         "mode": mode + (" (--quick)" if args.quick else ""),
         "sections": ", ".join(args.only),
-        "tumbling": (f"h ∈ {{{', '.join(fmt_step(h) for h in settings['tumble_steps'])}}} s, "
+        "tumbling": (("integrators " + ", ".join(f"{i}/{o}" if o else i for i, o in settings["tumble_configs"])
+                      if settings["tumble_configs"] else "every integrator and orientation update")
+                     + f", h ∈ {{{', '.join(fmt_step(h) for h in settings['tumble_steps'])}}} s, "
                      f"horizon {settings['tumble_horizon']:g} s, float64 and float32"),
         "throughput": (f"{settings['num_bodies']} bodies, batches {list(settings['batches'])}, "
                        f"{settings['throughput_steps']} steps per jitted scan, float32, "
@@ -88,11 +92,10 @@ def main(argv=None) -> int:
                        if {"stack3d", "pyramid2d"} & set(settings["contact_scenes"]) else "")
                     + f", {settings['contact_steps']} steps per jitted scan, float32"),
         "gradients": (f"scenes {', '.join(settings['gradient_scenes'])}, memory at T = "
-                      f"{', '.join(map(str, settings['gradient_memory_steps']))} for autodiff (with and "
-                      f"without checkpointing) and the hand-written adjoint, time at T = "
+                      f"{', '.join(map(str, settings['gradient_memory_steps']))} and time at T = "
                       f"{settings['gradient_time_steps']} at "
                       + (f"1 and {settings['gradient_batch']} worlds" if settings["gradient_batch"] else "one world")
-                      + ", float32"),
+                      + f", methods {', '.join(settings['gradient_methods'])}, float32"),
         "smoothing": (f"K = {settings['smoothing_worlds']} worlds, sweeps "
                       f"{', '.join(settings['smoothing_sweeps'])}, float64"),
         "speed_error": (f"scenes {', '.join(speed_error_settings['speed_error_scenes'])}: "
@@ -139,8 +142,6 @@ def main(argv=None) -> int:
                                        repeats=settings["repeats"], log=log)
 
     def run_gradients():
-        from jaxrb.bench import gradients
-
         return gradients.gradients_section(settings, log)
 
     runners = {
@@ -148,7 +149,8 @@ def main(argv=None) -> int:
         "hard_cases": ("Hard cases: stability, pass or fail", run_hard_cases),
         "peers": ("Peers side by side: MuJoCo, MJX, Brax, Jax2D, pymunk", run_peers),
         "tumbling": ("Torque-free tumbling in detail (intermediate-axis flip)", lambda: free_body.tumbling_section(
-            settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log)),
+            settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log,
+            configs=settings["tumble_configs"] or free_body.TUMBLE_CONFIGS)),
         "throughput": ("Free-body throughput", lambda: free_body.throughput_section(
             settings["throughput_integrators"], settings["batches"], settings["throughput_steps"],
             settings["num_bodies"], repeats=settings["repeats"], log=log)),

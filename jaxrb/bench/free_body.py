@@ -254,8 +254,12 @@ def _order(errors: Sequence[float], steps: Sequence[float]) -> list:
     return orders
 
 
-def tumbling_section(steps: Sequence[float], t_end: float, repeats: int = 5, log=None):
+def tumbling_section(steps: Sequence[float], t_end: float, repeats: int = 5, log=None,
+                     configs: Sequence[tuple] = TUMBLE_CONFIGS):
     """Run the tumbling benchmark; return ``(markdown, results)``.
+
+    ``configs``: (integrator, orientation update) pairs, default every one
+    the engine offers (:data:`TUMBLE_CONFIGS`).
 
     Needs ``jax_enable_x64`` (the float64 runs); float32 runs are built with an
     explicit dtype.
@@ -269,7 +273,7 @@ def tumbling_section(steps: Sequence[float], t_end: float, repeats: int = 5, log
     floors = {h: interpolation_floor(h, t_end, reference.flip_times) for h in steps}
 
     results = []
-    for integrator, orientation in TUMBLE_CONFIGS:
+    for integrator, orientation in configs:
         for h in steps:
             pair = {}
             for dtype in (jnp.float64, jnp.float32):

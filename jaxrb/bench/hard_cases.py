@@ -624,7 +624,8 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
                 rows.append(dict(body=name, time_of_impact=bool(toi), speed=float(v), holds=bool(ok),
                                  final_z=float(z), rests=bool(abs(z - HALF) < REST_TOL)))
             _log(log, f"hard impact {name:>6} toi={str(bool(toi)):<5}: holds at {holding} m/s, "
-                      f"fastest before the first tunnel {fastest[(name, bool(toi))]:g} m/s (compile {traces[0].compile_s:.1f} s)")
+                      f"fastest before the first tunnel {fastest[(name, bool(toi))]:g} m/s "
+                      f"(compile {traces[0].compile_s:.1f} s)")
     sphere_ok = (("sphere", True) not in fastest) or fastest[("sphere", True)] >= float(speeds.max())
     box_key = ("box", False) if ("box", False) in fastest else ("box", True)
     passed = sphere_ok and fastest[box_key] >= settings["required_box_speed"]
