@@ -408,12 +408,12 @@ FULL = dict(
     speed_error_repeats=5,
 )
 
-#: A run of about 20 s on 2 cores: one configuration a scene (the flip's is the
+#: A run of about 25 s on 2 cores: one configuration a scene (the flip's is the
 #: float32 target's integrator; the peers section runs it in float64 too) and its
-#: batched throughput. Compiles dominate the time,
-#: and impulse contact's most (the bounce's compiled for 11 s, the roll's for 13 s
-#: at batch 1 and 1 024), so quick's contact scenes run penalty contact only; the
-#: contact section shows impulse contact's cost.
+#: batched throughput. Compiles dominate the time, and impulse contact's most (the
+#: bounce's compiled for 11 s, the roll's for 13 s at batch 1 and 1 024), so quick's
+#: contact scenes run penalty contact only; the contact section shows impulse
+#: contact's cost.
 QUICK = dict(
     speed_error_scenes=SCENE_NAMES,
     speed_error_configs={
