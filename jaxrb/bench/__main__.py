@@ -18,8 +18,8 @@ SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "con
 #: of docs/benchmarks.md it took 2.7-2.8 minutes with the peers installed (0.7 of
 #: them the peers section) and about 2 without; compiling its programs is most
 #: of it (docs/performance.md, sections 25 and 26). ``full`` took about 45 minutes
-#: (docs/benchmarks.md's section wall times); its gradient settings are
-#: gradients.DEFAULT_SETTINGS.
+#: (docs/benchmarks.md's section wall times); what it does not set comes from the
+#: sections' own defaults (free_body.TUMBLE_CONFIGS, gradients.DEFAULT_SETTINGS).
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60,), tumble_horizon=6.0, repeats=3,
                   tumble_configs=(("semi_implicit", "exp_map"), ("implicit_gyro", "exp_map"), ("rk4", None),
@@ -30,7 +30,6 @@ SETTINGS = {
                   contact_steps=100, gradient_scenes=("tumble",), gradient_methods=("autodiff", "adjoint"),
                   gradient_memory_steps=(1000,), gradient_batch=None, gradient_rounds=21),
     "full": dict(tumble_steps=(1 / 60, 1 / 240, 1 / 1000), tumble_horizon=20.0, repeats=5,
-                 tumble_configs=None,
                  throughput_integrators=("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body"),
                  batches=(1, 1024), throughput_steps=1000, num_bodies=8,
                  contact_scenes=("bounce", "slide", "drop", "stack3d", "pyramid2d"),
@@ -43,7 +42,8 @@ def parse_args(argv=None):
         prog="python -m jaxrb.bench",
         description="jaxrb benchmarks: speed against error on scenes with closed forms, "
                     "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and "
-                    "time, and the smoothing knobs' gradient bias and spread. Prints Markdown and writes DIR/report.md.")
+                    "time, and the smoothing knobs' gradient bias and spread. Prints Markdown and writes "
+                    "DIR/report.md.")
     parser.add_argument("--quick", action="store_true",
                         help="one or two configurations of each kind and shorter horizons (under 3 minutes on 2 cores, "
                              "mostly compiling)")
@@ -66,7 +66,8 @@ def main(argv=None) -> int:
     from jaxrb.bench.timing import Stopwatch
 
     mode = "quick" if args.quick else "full"
-    settings = {**gradients.DEFAULT_SETTINGS, **SETTINGS[mode], **smoothing.SETTINGS[mode]}
+    settings = {"tumble_configs": free_body.TUMBLE_CONFIGS, **gradients.DEFAULT_SETTINGS, **SETTINGS[mode],
+                **smoothing.SETTINGS[mode]}
     from jaxrb.bench import speed_error
 
     speed_error_settings = speed_error.QUICK if args.quick else speed_error.FULL
@@ -79,8 +80,7 @@ def main(argv=None) -> int:
     info.update({
         "mode": mode + (" (--quick)" if args.quick else ""),
         "sections": ", ".join(args.only),
-        "tumbling": (("integrators " + ", ".join(f"{i}/{o}" if o else i for i, o in settings["tumble_configs"])
-                      if settings["tumble_configs"] else "every integrator and orientation update")
+        "tumbling": ("integrators " + ", ".join(f"{i}/{o}" if o else i for i, o in settings["tumble_configs"])
                      + f", h ∈ {{{', '.join(fmt_step(h) for h in settings['tumble_steps'])}}} s, "
                      f"horizon {settings['tumble_horizon']:g} s, float64 and float32"),
         "throughput": (f"{settings['num_bodies']} bodies, batches {list(settings['batches'])}, "
@@ -150,7 +150,7 @@ def main(argv=None) -> int:
         "peers": ("Peers side by side: MuJoCo, MJX, Brax, Jax2D, pymunk", run_peers),
         "tumbling": ("Torque-free tumbling in detail (intermediate-axis flip)", lambda: free_body.tumbling_section(
             settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log,
-            configs=settings["tumble_configs"] or free_body.TUMBLE_CONFIGS)),
+            configs=settings["tumble_configs"])),
         "throughput": ("Free-body throughput", lambda: free_body.throughput_section(
             settings["throughput_integrators"], settings["batches"], settings["throughput_steps"],
             settings["num_bodies"], repeats=settings["repeats"], log=log)),
