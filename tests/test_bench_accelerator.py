@@ -36,3 +36,13 @@ def test_a_row_that_raises_is_reported_and_the_rest_still_run(monkeypatch):
     assert rows[0].startswith("| failed") and "RuntimeError: RESOURCE_EXHAUSTED: out of memory" in rows[0]
     assert "more detail" not in rows[0]
     assert [row.split("|")[1].strip() for row in rows[1:]] == ["free bodies", "free bodies"]
+
+
+def test_gradient_rows_time_autodiff_and_the_adjoint_at_each_batch():
+    settings = dict(TINY, gradient_scenes=("tumble",), gradient_batches=(2,), gradient_steps=5)
+    rows = accelerator.gradient_rows(settings, None)
+    assert [tuple(row[:3]) for row in rows] == [
+        ("tumble", 1, "autodiff"), ("tumble", 1, "adjoint"), ("tumble", 2, "autodiff"), ("tumble", 2, "adjoint")]
+    for row in rows:
+        forward_ms, gradient_ms, ratio = float(row[4]), float(row[5]), float(row[6].rstrip("×"))
+        assert 0 < forward_ms and 0 < gradient_ms and math.isclose(ratio, gradient_ms / forward_ms, rel_tol=0.05), row

@@ -17,8 +17,10 @@ Rows (float32, compile time apart, median of repeated calls with
 * **penalty column / pyramid**: the peers section's 10-box column (0.5 ms)
   and 55-box 2D pyramid (2 ms), 1 s each, with whether they stand.
 * **impulse box drop**: jaxrb's impulse setting (1/60 s × 4), 300 steps.
-* **gradient**: the gradients section's scenes, one world, forward and
-  gradient of a 1 000-step trajectory loss (their ratio is the cheap-gradient
+* **gradient**: the gradients section's scenes, forward and gradient of a
+  1 000-step trajectory loss, by autodiff and by the hand-written adjoint
+  where the scene has one, at one world and, for scenes with an adjoint, at
+  the batches of ``gradient_batches`` (their ratio is the cheap-gradient
   figure; at one world it is set by per-kernel launch cost on a GPU).
 
 Each row is printed as soon as it is measured, so a run cut short still
@@ -43,10 +45,11 @@ SETTINGS = {
     "full": dict(free_batches=(1, 1024, 16384, 131072), drop_batches=(1024, 16384, 131072),
                  column_batches=(16, 1024, 8192), pyramid_batches=(16, 256, 4096),
                  impulse_batches=(1024, 16384), steps=1000, impulse_steps=300, standing_seconds=1.0,
-                 gradient_scenes=("tumble", "box_bounce"), gradient_steps=1000, repeats=5),
+                 gradient_scenes=("tumble", "box_drop_penalty"), gradient_batches=(1024, 16384),
+                 gradient_steps=1000, repeats=5),
     "quick": dict(free_batches=(1, 4), drop_batches=(4,), column_batches=(2,), pyramid_batches=(2,),
                   impulse_batches=(2,), steps=20, impulse_steps=5, standing_seconds=0.01,
-                  gradient_scenes=("tumble",), gradient_steps=20, repeats=2),
+                  gradient_scenes=("tumble",), gradient_batches=(2,), gradient_steps=20, repeats=2),
 }
 
 HEADERS = ["scene", "setting", "batch", "bodies", "compile (s)", "run (s)", "body-steps/s", "check"]
@@ -102,15 +105,28 @@ def measurements(settings: dict) -> List[Callable[[], list]]:
     return thunks
 
 
+GRADIENT_HEADERS = ["scene", "worlds", "method", "steps", "forward (ms)", "gradient (ms)", "ratio",
+                    "gradient compile (s)"]
+
+
 def gradient_rows(settings: dict, log) -> list:
-    """Forward and gradient times of each gradient scene at one world (see :mod:`jaxrb.bench.gradients`)."""
+    """Forward and gradient times of each gradient scene (see :mod:`jaxrb.bench.gradients`).
+
+    One world by autodiff and the adjoint; scenes with an adjoint also at each
+    of ``gradient_batches`` worlds.
+    """
     rows = []
     for name in settings["gradient_scenes"]:
-        timed = gradients.gradient_time(name, settings["gradient_steps"], repeats=settings["repeats"],
-                                        methods=("autodiff",), log=log)[0]
-        rows.append([name, settings["gradient_steps"], fmt_fixed(timed["forward_s"] * 1e3, 3),
-                     fmt_fixed(timed["grad_s"] * 1e3, 3), f"{timed['ratio']:.2f}×",
-                     fmt_fixed(timed["grad_compile_s"], 1)])
+        timed = []
+        for batch in (1,) + tuple(settings["gradient_batches"]):
+            timed += gradients.gradient_time(name, settings["gradient_steps"], repeats=settings["repeats"],
+                                             methods=("autodiff", "adjoint"), batch=batch, log=log)
+            if not any(row.get("method") == "adjoint" for row in timed):
+                break  # no adjoint: the batched autodiff gradient alone is not what a sweep would use
+        rows += [[name, row["batch"], row["method"], settings["gradient_steps"],
+                  fmt_fixed(row["forward_s"] * 1e3, 3), fmt_fixed(row["grad_s"] * 1e3, 3),
+                  f"{row['ratio']:.2f}×", fmt_fixed(row["grad_compile_s"], 1)]
+                 for row in timed if row["kind"] == "time"]
     return rows
 
 
@@ -133,11 +149,9 @@ def run(settings: dict, log=None) -> str:
     return "\n".join([
         markdown_table(HEADERS, rows, align=["l", "l", "r", "r", "r", "r", "r", "l"]),
         "",
-        "Gradient of a trajectory loss over every step, one world, all Params "
-        "(`jaxrb.bench.gradients`):",
+        "Gradient of a trajectory loss over every step, all Params (`jaxrb.bench.gradients`):",
         "",
-        markdown_table(["scene", "steps", "forward (ms)", "gradient (ms)", "ratio", "gradient compile (s)"],
-                       grads, align=["l", "r", "r", "r", "r", "r"]),
+        markdown_table(GRADIENT_HEADERS, grads, align=["l", "r", "l", "r", "r", "r", "r", "r"]),
     ])
 
 
