@@ -14,6 +14,7 @@ bouncing ball also needs the penalty spring's smooth activation: with the
 hard one, the step each bounce lands on is discrete in e as well (see the test).
 """
 
+import functools
 import math
 
 import jax
@@ -244,8 +245,8 @@ def test_fit_recovers_mass_and_inertia_2d_calls_back_and_compiles_once(free_2d):
     np.testing.assert_allclose(result.params.inertia, truth.inertia, rtol=1e-4)
 
 
-def test_fit_takes_the_same_steps_with_the_hand_written_adjoint(monkeypatch):
-    """A 3D free body: fit's default (the adjoint) and autodiff take the same optimiser steps."""
+def _tumbler_fit_inputs(monkeypatch):
+    """``(calls, fit)``: a 3D free body's inertia fit, and a list that grows each time the adjoint is traced."""
     calls = []
     hand_written = rb.adjoint.rollout
     monkeypatch.setattr(rb.adjoint, "rollout", lambda *args: calls.append(1) or hand_written(*args))
@@ -255,12 +256,28 @@ def test_fit_takes_the_same_steps_with_the_hand_written_adjoint(monkeypatch):
     step = rb.make_step(model)
     observed = sysid.observe(jax.jit(lambda s, p: rb.rollout(step, s, p, 30))(state, truth))
     start = truth.replace(inertia=truth.inertia * 1.3)
-    fits = [sysid.fit(step, start, state, observed, fields="inertia", optimizer=optax.adam(0.05), num_steps=5,
-                      adjoint=adjoint) for adjoint in (False, None)]
+    return calls, functools.partial(sysid.fit, step, start, state, observed, fields="inertia",
+                                    optimizer=optax.adam(0.05), num_steps=5)
+
+
+def test_fit_takes_the_same_steps_with_the_hand_written_adjoint(monkeypatch):
+    """A 3D free body: fit's default (the adjoint) and autodiff take the same optimiser steps."""
+    calls, fit = _tumbler_fit_inputs(monkeypatch)
+    fits = [fit(adjoint=adjoint) for adjoint in (False, None)]
     assert len(calls) == 1  # traced once, by the default (adjoint=None) fit
     np.testing.assert_allclose(fits[1].losses, fits[0].losses, rtol=1e-9)
     np.testing.assert_allclose(fits[1].params.inertia, fits[0].params.inertia, rtol=1e-9)
     assert not np.allclose(fits[0].losses[1:], fits[0].losses[0])  # the steps changed the loss
+
+
+def test_fit_defaults_to_autodiff_off_the_cpu(monkeypatch):
+    """On a GPU the adjoint was the slower at one world (docs/accelerator.md): the default skips it there."""
+    calls, fit = _tumbler_fit_inputs(monkeypatch)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    result = fit()
+    assert calls == [] and np.all(np.isfinite(result.losses))
+    fit(adjoint=True)
+    assert len(calls) == 1  # asked for, it is still taken
 
 
 def test_fit_stops_early_and_many_trajectories_share_params():
