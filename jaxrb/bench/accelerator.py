@@ -122,7 +122,7 @@ def gradient_rows(settings: dict, log) -> list:
             timed += gradients.gradient_time(name, settings["gradient_steps"], repeats=settings["repeats"],
                                              methods=("autodiff", "adjoint"), batch=batch, log=log)
             if not any(row.get("method") == "adjoint" for row in timed):
-                break  # no adjoint: the batched autodiff gradient alone is not what a sweep would use
+                break  # batched rows compare the two methods, as the gradients section's do
         rows += [[name, row["batch"], row["method"], settings["gradient_steps"],
                   fmt_fixed(row["forward_s"] * 1e3, 3), fmt_fixed(row["grad_s"] * 1e3, 3),
                   f"{row['ratio']:.2f}×", fmt_fixed(row["grad_compile_s"], 1)]
