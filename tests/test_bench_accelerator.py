@@ -46,3 +46,11 @@ def test_gradient_rows_time_autodiff_and_the_adjoint_at_each_batch():
     for row in rows:
         forward_ms, gradient_ms, ratio = float(row[4]), float(row[5]), float(row[6].rstrip("×"))
         assert 0 < forward_ms and 0 < gradient_ms and math.isclose(ratio, gradient_ms / forward_ms, rel_tol=0.05), row
+
+
+def test_only_measures_the_kinds_of_row_asked_for(monkeypatch, tmp_path):
+    monkeypatch.setitem(accelerator.SETTINGS, "quick", dict(TINY, gradient_scenes=("tumble",)))
+    assert accelerator.main(["--quick", "--only", "drop", "--out", str(tmp_path)]) == 0
+    text = (tmp_path / "accelerator.md").read_text()
+    assert [row.split("|")[1].strip() for row in _table_rows(text)] == ["box drop"]
+    assert "Gradient of a trajectory loss" not in text and "**rows**: drop" in text

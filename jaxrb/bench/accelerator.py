@@ -1,10 +1,12 @@
 """Throughput on the default JAX device at growing batch: how far vmap scales.
 
-``python -m jaxrb.bench.accelerator [--quick] [--out DIR]`` runs the
-benchmark scenes of :mod:`jaxrb.bench.free_body`, :mod:`jaxrb.bench.peers`
-and :mod:`jaxrb.bench.gradients` on whatever device JAX picks (a GPU when
-jaxlib has one, else the CPU) at batches up to 131 072 worlds, and writes
-``DIR/accelerator.md``. It is separate from ``python -m jaxrb.bench``
+``python -m jaxrb.bench.accelerator [--quick] [--out DIR] [--only ROWS ...]``
+runs the benchmark scenes of :mod:`jaxrb.bench.free_body`,
+:mod:`jaxrb.bench.peers` and :mod:`jaxrb.bench.gradients` on whatever device
+JAX picks (a GPU when jaxlib has one, else the CPU) at batches up to
+131 072 worlds, and writes ``DIR/accelerator.md``; ``--only`` picks kinds of
+row (:data:`ROW_KINDS`), so a short lease can time a few before and after a
+change. It is separate from ``python -m jaxrb.bench``
 because its batches are sized for an accelerator: on two CPU cores the full
 run takes hours. Nothing in jaxrb depends on a GPU; this only measures one.
 
@@ -51,6 +53,10 @@ SETTINGS = {
                   impulse_batches=(2,), steps=20, impulse_steps=5, standing_seconds=0.01,
                   gradient_scenes=("tumble",), gradient_batches=(2,), gradient_steps=20, repeats=2),
 }
+
+#: ``--only`` choices: each kind of row and the settings key that lists its batches (or scenes).
+ROW_KINDS = {"free": "free_batches", "drop": "drop_batches", "column": "column_batches",
+             "pyramid": "pyramid_batches", "impulse": "impulse_batches", "gradients": "gradient_scenes"}
 
 HEADERS = ["scene", "setting", "batch", "bodies", "compile (s)", "run (s)", "body-steps/s", "check"]
 
@@ -146,27 +152,30 @@ def run(settings: dict, log=None) -> str:
                         + [""] * (len(HEADERS) - 2))
         log(" | ".join(map(str, rows[-1])))
     grads = gradient_rows(settings, log)
-    return "\n".join([
-        markdown_table(HEADERS, rows, align=["l", "l", "r", "r", "r", "r", "r", "l"]),
-        "",
-        "Gradient of a trajectory loss over every step, all Params (`jaxrb.bench.gradients`):",
-        "",
-        markdown_table(GRADIENT_HEADERS, grads, align=["l", "r", "l", "r", "r", "r", "r", "r"]),
-    ])
+    parts = [markdown_table(HEADERS, rows, align=["l", "l", "r", "r", "r", "r", "r", "l"]), ""] if rows else []
+    if grads:
+        parts += ["Gradient of a trajectory loss over every step, all Params (`jaxrb.bench.gradients`):", "",
+                  markdown_table(GRADIENT_HEADERS, grads, align=["l", "r", "l", "r", "r", "r", "r", "r"])]
+    return "\n".join(parts)
 
 
 def main(argv: Sequence[str] = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m jaxrb.bench.accelerator", description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny batches and horizons, to check the module")
     parser.add_argument("--out", default="bench_out", metavar="DIR", help="where accelerator.md goes")
+    parser.add_argument("--only", nargs="+", choices=ROW_KINDS, default=list(ROW_KINDS), metavar="ROWS",
+                        help=f"measure only these kinds of row (a short lease): {', '.join(ROW_KINDS)}")
     args = parser.parse_args(argv)
     log = free_body.stderr_log
+    settings = dict(SETTINGS["quick" if args.quick else "full"])
+    settings.update({key: () for kind, key in ROW_KINDS.items() if kind not in args.only})
     report = Report("jaxrb throughput on " + jax.default_backend().upper())
     info = machine_info()
     info["mode"] = "quick" if args.quick else "full"
+    info["rows"] = ", ".join(kind for kind in ROW_KINDS if kind in args.only)
     report.extend(bullet_list(info))
     start = time.perf_counter()
-    report.extend(run(SETTINGS["quick" if args.quick else "full"], log))
+    report.extend(run(settings, log))
     report.paragraph(f"Wall time: {time.perf_counter() - start:.1f} s.")
     os.makedirs(args.out, exist_ok=True)
     report.write(os.path.join(args.out, "accelerator.md"))
