@@ -246,7 +246,7 @@ def test_fit_recovers_mass_and_inertia_2d_calls_back_and_compiles_once(free_2d):
 
 
 def _tumbler_fit_inputs(monkeypatch):
-    """``(calls, fit)``: a 3D free body's inertia fit, and a list that grows each time the adjoint is traced."""
+    """``(calls, fit)``: a list that grows each time the adjoint is traced, and a 3D free body's inertia fit."""
     calls = []
     hand_written = rb.adjoint.rollout
     monkeypatch.setattr(rb.adjoint, "rollout", lambda *args: calls.append(1) or hand_written(*args))
