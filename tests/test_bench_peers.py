@@ -90,7 +90,8 @@ def test_markdown_is_well_formed(section):
     text, results = section
     assert "**Box drop**" in text and "**Torque-free flip**" in text and "**Issue-6 targets**" in text
     assert "| MuJoCo C" in text
-    assert "**Not run with these settings**: 10-box stack, 2D 10-row pyramid (55 boxes) (the full run" in text
+    assert "**Not run with these settings**: 10-box stack, 2D 10-row pyramid (55 boxes), Gradient through contact " \
+           "(the full run" in text
     tables = [block for block in text.split("\n\n") if block.startswith("|")]
     assert len(tables) == 3  # drop, flip, targets
     for table in tables:
@@ -107,8 +108,8 @@ def test_markdown_is_well_formed(section):
 def test_the_note_on_what_was_not_run_names_quick_cuts_and_nothing_for_the_full_run():
     assert "Not run" not in peers.markdown([], {}, peers.FULL)
     quick = peers.markdown([], {}, peers.QUICK)
-    assert "**Not run with these settings**: 10-box stack, 2D 10-row pyramid (55 boxes), Brax positional, " \
-           "Jax2D, pymunk, MJX's flip (the full run has them)." in quick
+    assert "**Not run with these settings**: 10-box stack, 2D 10-row pyramid (55 boxes), Gradient through " \
+           "contact, Brax positional, Jax2D, pymunk, MJX's flip (the full run has them)." in quick
 
 
 def test_ratio():

@@ -38,6 +38,9 @@ peer's own scene API (Jax2D, pymunk):
   0.4) kg m², ω0 = (0.1, 15, 0.1) rad/s): largest flip-time error against
   :func:`jaxrb.analytic.flip_times` for MuJoCo C's RK4 (float64), MJX's RK4
   (float32) and jaxrb's best integrator (float32 and float64) at each h.
+* **gradient**: the drop's gradient in one world, jaxrb against the peers
+  that differentiate (MJX, Brax): forward and gradient time, whether every
+  entry is finite, and ∂loss/∂z0 (:mod:`jaxrb.bench.peer_gradients`).
 
 Timing is :func:`jaxrb.bench.timing.time_jitted` for everything jitted
 (compile apart, then the median of calls after a warm-up, with
@@ -56,6 +59,7 @@ this batch, for the pymunk target; ``None`` to skip), ``pyramid_big_seconds``
 and ``pyramid_jaxrb``; ``flip_steps``,
 ``flip_horizon`` and ``flip_configs`` (jaxrb (integrator, orientation) pairs;
 the best per h counts), ``flip_mjx`` (False: MJX's flip skipped);
+``gradient_steps`` (T) and ``gradient_rounds`` (timed rounds at most);
 ``repeats``/``budget_s`` for timing; ``with_jaxrb``
 (False: peers only).
 
@@ -111,7 +115,7 @@ ENGINES = ("mujoco", "mjx", "brax_spring", "brax_positional", "jax2d", "pymunk")
 ENGINE_NAMES = {"jaxrb": "jaxrb", "mujoco": "MuJoCo C", "mjx": "MJX", "brax_spring": "Brax spring",
                 "brax_positional": "Brax positional", "jax2d": "Jax2D", "pymunk": "pymunk"}
 SCENE_TITLES = {"drop": "Box drop", "stack": "10-box stack", "pyramid": "2D 10-row pyramid (55 boxes)",
-                "flip": "Torque-free flip"}
+                "flip": "Torque-free flip", "gradient": "Gradient through contact"}
 
 #: jaxrb's box-drop rows: (contact model, dt, substeps). Its own impulse setting, and
 #: both contact models at the peers' h = 2 ms (penalty being what Brax spring is).
@@ -146,8 +150,8 @@ STANDING_SETTINGS = {
 
 #: QUICK runs the box drop (jaxrb's penalty row against MuJoCo C, MJX and Brax
 #: spring, the peers of its targets) and the flip at one h (jaxrb's RK4s against
-#: MuJoCo C); the stack, the pyramid, Brax positional, Jax2D, pymunk and MJX's
-#: flip are in the full run only. Compiling is most of the section's time: the
+#: MuJoCo C); the stack, the pyramid, the gradient, Brax positional, Jax2D, pymunk
+#: and MJX's flip are in the full run only. Compiling is most of the section's time: the
 #: peers' programs alone compile for 8-24 s each (Brax positional's drop 24 s,
 #: Jax2D's pyramid 21 s, Brax spring's stack 15 s), and with all four scenes
 #: the quick section took 161 s on the 2-core host.
@@ -161,10 +165,10 @@ QUICK = dict(
     peers_pyramid_big_seconds=1.0, peers_pyramid_jaxrb=("penalty",),
     peers_flip_steps=(1 / 60,), peers_flip_horizon=6.0,
     peers_flip_configs=(("rk4", None), ("rk4_body", None)), peers_flip_mjx=False,
-    peers_repeats=2, peers_budget_s=3.0, peers_with_jaxrb=True,
+    peers_gradient_steps=1000, peers_gradient_rounds=101, peers_repeats=2, peers_budget_s=3.0, peers_with_jaxrb=True,
 )
 FULL = dict(
-    peers_scenes=("drop", "stack", "pyramid", "flip"), peers_engines=ENGINES,
+    peers_scenes=("drop", "stack", "pyramid", "flip", "gradient"), peers_engines=ENGINES,
     peers_drop_batch=1024, peers_drop_steps=1000, peers_mujoco_worlds=256,
     peers_drop_jaxrb=DROP_JAXRB,
     peers_stack_batch=16, peers_stack_seconds=5.0, peers_stack_mjx=False,  # MJX: ~1.5 k body-steps/s, 4+ min
@@ -174,6 +178,7 @@ FULL = dict(
     peers_pyramid_jaxrb=("impulse", "penalty"),
     peers_flip_steps=(1 / 60, 1 / 240, 1 / 1000), peers_flip_horizon=20.0,
     peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")), peers_flip_mjx=True,
+    peers_gradient_steps=1000, peers_gradient_rounds=101,  # rounds stop once peers_budget_s is spent
     peers_repeats=3, peers_budget_s=5.0, peers_with_jaxrb=True,
 )
 
@@ -983,6 +988,17 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
                                                                settings))
             if settings["peers_flip_mjx"]:
                 attempt("mjx", "flip", lambda hh=h: mjx_flip(modules["mjx"], hh, horizon, reference, settings))
+    if "gradient" in scenes:
+        from jaxrb.bench import peer_gradients  # it builds on this module
+
+        steps = settings["peers_gradient_steps"]
+        for model, method in peer_gradients.JAXRB_SETTINGS:
+            attempt("jaxrb", "gradient", lambda m=model, r=method: peer_gradients.jaxrb_gradient(m, r, steps,
+                                                                                                 settings))
+        attempt("mjx", "gradient", lambda: peer_gradients.mjx_gradient(modules["mjx"], steps, settings))
+        for engine in ("brax_spring", "brax_positional"):
+            attempt(engine, "gradient", lambda e=engine: peer_gradients.brax_gradient(e, modules[e], steps,
+                                                                                      settings))
     return rows, skipped
 
 
@@ -1108,6 +1124,16 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
                   f"{free_body.TUMBLE_ANGVEL} rad/s, {settings['peers_flip_horizon']:g} s; largest error of "
                   "the flip times (sign changes of body-frame ω_y, linear interpolation between steps) "
                   "against `jaxrb.analytic.flip_times`; inf = flips missing.", "", flip_table(rows)]
+    if any(r.scene == "gradient" for r in rows):
+        from jaxrb.bench import peer_gradients
+
+        parts += [f"**{SCENE_TITLES['gradient']}**: the box drop in one world at h = 2 ms for "
+                  f"{settings['peers_gradient_steps']} steps, float32; the gradient of the mean over the steps "
+                  "of the squares of position, velocity, angular velocity and the quaternion's vector part, "
+                  "the same loss in every engine, so a loss far from the others' is a different motion. MJX "
+                  "runs one solver iteration: its solver's `while_loop` cannot be reversed (MuJoCo issue #2259). "
+                  "Speed columns: jaxrb's gradient body-steps/s over the row's.", "",
+                  peer_gradients.gradient_table(rows)]
     targets = evaluate_targets(rows)
     if targets:
         parts += ["**Issue-6 targets** measured here (the gradient target is in the gradient "

@@ -1,0 +1,189 @@
+"""Gradients through contact side by side: jaxrb and the peers that differentiate (MJX, Brax).
+
+The scene is the peers' box drop (:mod:`jaxrb.bench.peers`: a 0.2 m box,
+1 kg, released from rest with its centre at 0.5 m above a plane, μ = 0.5),
+one world, every engine at h = 2 ms for T steps (T = 1 000: the fall, the
+landing at about step 143, then rest), float32. Each engine differentiates
+the same loss of the motion, the mean over the T steps of the squares of the
+position, the linear and angular velocity and the quaternion's vector part
+(:func:`jaxrb.bench.gradients.trajectory_loss`; a mean of squares of the
+angular velocity's components is the same in the world and the body frame,
+so a peer's generalised velocity gives the same number):
+
+* **jaxrb**, with respect to every field of Params and the initial motion
+  (position, quaternion, velocity and angular velocity):
+  penalty contact with the hand-written adjoint (``rb.rollout(...,
+  adjoint=True)``, what ``sysid.fit`` takes on a CPU) and impulse contact with
+  autodiff (it has no adjoint);
+* **MJX** and **Brax** (spring and positional pipelines), with respect to the
+  box's mass, the friction coefficients and the initial ``qpos``. MJX's
+  constraint solver loops in a ``while_loop``, which JAX cannot reverse, so
+  its model runs one solver iteration (``opt.iterations = 1``, the workaround
+  MuJoCo's issue #2259 names). MuJoCo C has no gradients, and Jax2D and pymunk
+  do not run this 3D scene.
+
+Forward and gradient are compiled apart and timed in turn, call by call
+(:func:`jaxrb.bench.timing.time_alternated`). Each row also reports whether
+every gradient entry is finite, and the loss: the same function of the
+motion in every engine, so a value far from the others' is a different
+motion (MJX with one solver iteration does not bring the box to rest). Rows
+keep ∂loss/∂z0 too, the initial height's entry, whose closed form in free
+fall the tests check. It is not compared across engines once the box lands:
+the loss is then a sawtooth in the initial height (the step at which the box
+first touches moves by one every 5.6 mm, the fall per step at the landing
+speed), and each engine's derivative is that of its own smooth pieces.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxrb.bench import contact, gradients, peers
+from jaxrb.bench.report import fmt_fixed, fmt_si, markdown_table
+from jaxrb.bench.timing import compile_jitted, time_alternated
+
+#: jaxrb's rows: (contact model, reverse mode), both at the peers' step, one substep.
+JAXRB_SETTINGS = (("penalty", "adjoint"), ("impulse", "autodiff"))
+#: The State fields jaxrb's gradient is also taken for (its "initial motion"; the rest are not real-valued
+#: or, like the impulse solver's warm start, start at zero).
+MOTION_FIELDS = ("pos", "quat", "vel", "angvel")
+
+
+def generalized_loss(qpos, qvel) -> jax.Array:
+    """:func:`jaxrb.bench.gradients.trajectory_loss` of one free body's joint trajectory.
+
+    Args:
+        qpos: (T, 7) position and (w, x, y, z) quaternion.
+        qvel: (T, 6) linear and angular velocity.
+
+    Returns:
+        () scalar.
+    """
+    return (jnp.mean(qpos[:, :3] ** 2) + jnp.mean(qvel[:, :3] ** 2) + jnp.mean(qvel[:, 3:] ** 2)
+            + jnp.mean(qpos[:, 4:] ** 2))
+
+
+def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_steps, settings) -> peers.PeerRow:
+    """Compile and time ``loss`` and its gradient; the row's run time is the gradient's.
+
+    Args:
+        engine, setting: as :class:`jaxrb.bench.peers.PeerRow` names them.
+        wrt: short text, what the gradient is taken with respect to.
+        loss: ``loss(*args) -> ()``.
+        args: its arguments.
+        argnums: the arguments differentiated.
+        height_of: gradient -> ∂loss/∂z0 (a scalar).
+        num_steps: T.
+        settings: the section's (``peers_gradient_rounds``, ``peers_budget_s``).
+    """
+    forward, forward_compile_s = compile_jitted(loss, *args)
+    gradient, compile_s = compile_jitted(jax.grad(loss, argnums), *args)
+    (forward_s, _, value), (grad_s, _, grads) = time_alternated(
+        (forward, gradient), *args, repeats=settings["peers_gradient_rounds"], budget_s=settings["peers_budget_s"])
+    finite = all(bool(np.all(np.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(grads))
+    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, 1, 1, num_steps, compile_s, grad_s, dict(
+        wrt=wrt, forward_s=forward_s, forward_compile_s=forward_compile_s, ratio=grad_s / forward_s,
+        loss=float(value), finite=finite, height_gradient=float(height_of(grads))))
+
+
+def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict) -> peers.PeerRow:
+    """jaxrb's row: ``contact_model`` at h = 2 ms, reverse mode ``method`` (a key of ``gradients.METHODS``)."""
+    import jaxrb as rb
+
+    model, params, state = contact.drop_scene().build(dtype=jnp.float32, dt=peers.PEER_STEP, contact=contact_model)
+    state_loss = gradients.make_loss(rb.make_step(model), num_steps, method)
+    motion = {name: getattr(state, name) for name in MOTION_FIELDS}
+
+    def loss(params, motion):
+        return state_loss(params, state.replace(**motion))
+
+    return _gradient_row("jaxrb", f"{contact_model}, 2 ms, {method}", "every Params field, initial motion", loss,
+                         (params, motion), (0, 1), lambda grads: grads[1]["pos"][0, 2], num_steps, settings)
+
+
+def _joint_height(grads):
+    return grads["qpos"][2]
+
+
+def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
+    """MJX's row: ``mjx.step`` scanned, one solver iteration (see the module docstring)."""
+    mujoco, mjx = mods["mujoco"], mods["mjx"]
+    with peers.x64(False):
+        model = mujoco.MjModel.from_xml_string(peers.drop_mjcf())
+        model.opt.iterations = 1
+        mx = mjx.put_model(model)
+        data0 = mjx.make_data(mx)
+        theta = dict(mass=mx.body_mass, friction=mx.geom_friction, qpos=jnp.asarray(model.qpos0, jnp.float32))
+
+        def loss(theta):
+            stepped = mx.replace(body_mass=theta["mass"], geom_friction=theta["friction"])
+
+            def one(data, _):
+                data = mjx.step(stepped, data)
+                return data, (data.qpos, data.qvel)
+
+            _, (qpos, qvel) = jax.lax.scan(one, data0.replace(qpos=theta["qpos"]), None, length=num_steps)
+            return generalized_loss(qpos, qvel)
+
+        return _gradient_row("mjx", "Euler, 1 solver iteration", "mass, friction, initial qpos", loss, (theta,),
+                             0, _joint_height, num_steps, settings)
+
+
+def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
+    """Brax's row (``engine``: ``"brax_spring"`` or ``"brax_positional"``): ``pipeline.step`` scanned."""
+    mjcf, pipeline = mods["mjcf"], mods["pipeline"]
+    with peers.x64(False), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Brax warns that it is unmaintained on every load
+        system = mjcf.loads(peers.drop_mjcf())
+        zero_qd = jnp.zeros(system.qd_size(), jnp.float32)
+        act = jnp.zeros(system.act_size(), jnp.float32)
+        theta = dict(mass=system.link.inertia.mass, friction=system.geom_friction,
+                     qpos=jnp.asarray(system.init_q, jnp.float32))
+
+        def loss(theta):
+            stepped = system.replace(geom_friction=theta["friction"]).tree_replace(
+                {"link.inertia.mass": theta["mass"]})
+
+            def one(state, _):
+                state = pipeline.step(stepped, state, act)
+                return state, (state.q, state.qd)
+
+            first = pipeline.init(stepped, theta["qpos"], zero_qd)
+            _, (qpos, qvel) = jax.lax.scan(one, first, None, length=num_steps)
+            return generalized_loss(qpos, qvel)
+
+        return _gradient_row(engine, "pipeline.step, system from MJCF", "mass, friction, initial qpos", loss,
+                             (theta,), 0, _joint_height, num_steps, settings)
+
+
+def gradient_table(rows: Sequence[peers.PeerRow]) -> str:
+    """Markdown table of the gradient rows: times, ratio to the forward, finiteness and jaxrb's speed over each.
+
+    Args:
+        rows: all rows (other scenes are ignored).
+
+    Returns:
+        The table; one speed column per jaxrb row (its gradient's body-steps/s
+        over the row's).
+    """
+    chosen = [r for r in rows if r.scene == "gradient"]
+    mine = [r for r in chosen if r.engine == "jaxrb"]
+    ordered = mine + [r for r in chosen if r.engine != "jaxrb"]
+    headers = (["engine", "setting", "with respect to", "forward (ms)", "gradient (ms)", "gradient / forward",
+                "gradient body-steps/s", "compile: forward, gradient (s)", "all finite", "loss"]
+               + [f"jaxrb {r.setting} / this" for r in mine])
+    table_rows = []
+    for row in ordered:
+        m = row.metrics
+        table_rows.append(
+            [peers.ENGINE_NAMES[row.engine], row.setting, m["wrt"], fmt_fixed(1e3 * m["forward_s"], 2),
+             fmt_fixed(1e3 * row.run_s, 2), fmt_fixed(m["ratio"], 2) + "×", fmt_si(row.body_steps_per_s),
+             f"{fmt_fixed(m['forward_compile_s'], 1)}, {fmt_fixed(row.compile_s, 1)}",
+             "yes" if m["finite"] else "**NO**", fmt_fixed(m["loss"], 4)]
+            + [fmt_fixed(peers.ratio(r.body_steps_per_s, row.body_steps_per_s), 1) + "×" for r in mine])
+    return markdown_table(headers, table_rows, align=["l", "l", "l"] + ["r"] * (len(headers) - 3))
