@@ -13,13 +13,14 @@ from jaxrb.bench import peer_gradients, peers
 
 GRAVITY = 9.81
 STEPS = 20  # 40 ms of fall from 0.5 m: the box is still 0.39 m above the plane
+BATCH = 2
 
 
 @pytest.fixture(scope="module")
 def scene():
-    """The gradient scene alone, jaxrb's rows only (each reverse mode compiled once for the module)."""
+    """The gradient scene alone, jaxrb's rows only (each compiled once for the module)."""
     settings = dict(peers_scenes=("gradient",), peers_engines=(), peers_gradient_steps=STEPS,
-                    peers_gradient_rounds=3, peers_budget_s=0.5)
+                    peers_gradient_batch=BATCH, peers_gradient_rounds=3, peers_budget_s=0.5)
     rows, skipped = peers.run_peers(settings)
     return rows, skipped, peers.markdown(rows, skipped, settings)
 
@@ -34,16 +35,21 @@ def free_fall_height_gradient(z0, h, steps):
     return 2.0 / 3.0 * np.mean(z0 - GRAVITY * h * h * t * (t + 1) / 2)
 
 
-@pytest.mark.slow  # compiles both of jaxrb's gradients (impulse autodiff ~20 s)
+@pytest.mark.slow  # compiles jaxrb's three gradients (impulse autodiff ~20 s)
 def test_each_jaxrb_row_differentiates_the_stated_loss(scene):
     rows, skipped, _ = scene
     assert not skipped
-    assert [(r.engine, r.setting) for r in rows] == [
-        ("jaxrb", f"{model}, 2 ms, {method}") for model, method in peer_gradients.JAXRB_SETTINGS]
-    expected = free_fall_height_gradient(peers.DROP_CENTRE, peers.PEER_STEP, STEPS)
+    assert [(r.engine, r.setting, r.batch) for r in rows] == [
+        ("jaxrb", f"{model}, 2 ms, {method}", 1) for model, method in peer_gradients.JAXRB_SETTINGS] + [
+        ("jaxrb", "penalty, 2 ms, adjoint", BATCH)]
+    # Batched, the loss is the worlds' mean: the heights' entries sum to the mean of each world's
+    # closed form, whose worlds start 0-1 mm higher.
+    lifted = np.mean(peers.world_shifts(BATCH, 3)[:, 2])
     for row in rows:
         m = row.metrics
-        assert row.num_steps == STEPS and row.batch == 1 and m["finite"]
+        expected = free_fall_height_gradient(peers.DROP_CENTRE + (lifted if row.batch > 1 else 0.0),
+                                             peers.PEER_STEP, STEPS)
+        assert row.num_steps == STEPS and m["finite"]
         assert m["height_gradient"] == pytest.approx(expected, rel=1e-5)  # float32 sums of 20 terms
         assert m["ratio"] == pytest.approx(row.run_s / m["forward_s"])
         assert row.compile_s > 0 and m["forward_compile_s"] > 0
@@ -56,21 +62,24 @@ def test_the_gradient_table_is_in_the_markdown(scene):
     table = [block for block in text.split("\n\n") if block.startswith("| engine")]
     assert len(table) == 1
     lines = table[0].splitlines()
-    assert len(lines) == 2 + len(peer_gradients.JAXRB_SETTINGS)
+    assert len(lines) == 2 + len(peer_gradients.JAXRB_SETTINGS) + 1
     assert len({line.count("|") for line in lines}) == 1
 
 
-def made_up(engine, grad_s, finite=True, setting="s"):
-    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, 1, 1, 1000, 2.0, grad_s, dict(
+def made_up(engine, grad_s, finite=True, setting="s", batch=1):
+    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, batch, 1, 1000, 2.0, grad_s, dict(
         wrt="w", forward_s=grad_s / 4, forward_compile_s=1.0, ratio=4.0, loss=1.0, finite=finite,
         height_gradient=math.nan if not finite else 0.1))
 
 
-def test_the_table_gives_jaxrb_over_each_engine_and_flags_a_non_finite_gradient():
+def test_the_table_gives_jaxrb_over_each_engine_at_the_same_batch_and_flags_a_non_finite_gradient():
     rows = [made_up("mjx", 0.2, finite=False), made_up("jaxrb", 0.002, setting="mine"),
-            made_up("brax_spring", 0.05)]
+            made_up("brax_spring", 0.05), made_up("jaxrb", 0.5, setting="mine", batch=1024),
+            made_up("brax_spring", 5.0, batch=1024), made_up("brax_spring", 1.0, batch=64)]
     lines = peer_gradients.gradient_table(rows).splitlines()
     assert "jaxrb mine / this" in lines[0]
-    assert lines[2].startswith("| jaxrb") and lines[2].rstrip(" |").endswith("1.0×")  # jaxrb first
-    assert lines[3].startswith("| MJX") and "**NO**" in lines[3] and "100.0×" in lines[3]
-    assert lines[4].startswith("| Brax spring") and "25.0×" in lines[4] and "4.00×" in lines[4]
+    cells = [[cell.strip() for cell in line.strip(" |").split("|")] for line in lines[2:]]
+    assert [(c[0], c[2], c[-1]) for c in cells] == [  # by batch, jaxrb first; its speed over the row's
+        ("jaxrb", "1", "1.0×"), ("MJX", "1", "100.0×"), ("Brax spring", "1", "25.0×"),
+        ("Brax spring", "64", "—"), ("jaxrb", "1024", "1.0×"), ("Brax spring", "1024", "10.0×")]
+    assert cells[1][9] == "**NO**" and cells[2][9] == "yes" and cells[2][6] == "4.00×"

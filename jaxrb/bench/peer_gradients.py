@@ -2,9 +2,12 @@
 
 The scene is the peers' box drop (:mod:`jaxrb.bench.peers`: a 0.2 m box,
 1 kg, released from rest with its centre at 0.5 m above a plane, μ = 0.5),
-one world, every engine at h = 2 ms for T steps (T = 1 000: the fall, the
-landing at about step 143, then rest), float32. Each engine differentiates
-the same loss of the motion, the mean over the T steps of the squares of the
+every engine at h = 2 ms for T steps (T = 1 000: the fall, the landing at
+about step 143, then rest), float32, in one world and, for jaxrb's penalty
+adjoint and Brax spring (the one peer whose gradient is finite here), in a
+batch of worlds that differ by the drop benchmark's tiny shifts
+(:func:`jaxrb.bench.peers.world_shifts`), the loss their mean. Each engine
+differentiates the same loss of the motion, the mean over the T steps of the squares of the
 position, the linear and angular velocity and the quaternion's vector part
 (:func:`jaxrb.bench.gradients.trajectory_loss`; a mean of squares of the
 angular velocity's components is the same in the world and the body frame,
@@ -68,7 +71,8 @@ def generalized_loss(qpos, qvel) -> jax.Array:
             + jnp.mean(qpos[:, 4:] ** 2))
 
 
-def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_steps, settings) -> peers.PeerRow:
+def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_steps, batch,
+                  settings) -> peers.PeerRow:
     """Compile and time ``loss`` and its gradient; the row's run time is the gradient's.
 
     Args:
@@ -77,8 +81,9 @@ def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_step
         loss: ``loss(*args) -> ()``.
         args: its arguments.
         argnums: the arguments differentiated.
-        height_of: gradient -> ∂loss/∂z0 (a scalar).
+        height_of: gradient -> ∂loss/∂z0 (a scalar: summed over the worlds' initial heights).
         num_steps: T.
+        batch: worlds.
         settings: the section's (``peers_gradient_rounds``, ``peers_budget_s``).
     """
     forward, forward_compile_s = compile_jitted(loss, *args)
@@ -86,28 +91,31 @@ def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_step
     (forward_s, _, value), (grad_s, _, grads) = time_alternated(
         (forward, gradient), *args, repeats=settings["peers_gradient_rounds"], budget_s=settings["peers_budget_s"])
     finite = all(bool(np.all(np.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(grads))
-    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, 1, 1, num_steps, compile_s, grad_s, dict(
+    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, batch, 1, num_steps, compile_s, grad_s, dict(
         wrt=wrt, forward_s=forward_s, forward_compile_s=forward_compile_s, ratio=grad_s / forward_s,
         loss=float(value), finite=finite, height_gradient=float(height_of(grads))))
 
 
-def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict) -> peers.PeerRow:
+def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
     """jaxrb's row: ``contact_model`` at h = 2 ms, reverse mode ``method`` (a key of ``gradients.METHODS``)."""
     import jaxrb as rb
 
     model, params, state = contact.drop_scene().build(dtype=jnp.float32, dt=peers.PEER_STEP, contact=contact_model)
-    state_loss = gradients.make_loss(rb.make_step(model), num_steps, method)
+    if batch > 1:
+        state = contact._batched_state(state, batch)
+    state_loss = gradients.make_loss(rb.make_step(model), num_steps, method, batch)
     motion = {name: getattr(state, name) for name in MOTION_FIELDS}
 
     def loss(params, motion):
         return state_loss(params, state.replace(**motion))
 
     return _gradient_row("jaxrb", f"{contact_model}, 2 ms, {method}", "every Params field, initial motion", loss,
-                         (params, motion), (0, 1), lambda grads: grads[1]["pos"][0, 2], num_steps, settings)
+                         (params, motion), (0, 1), lambda grads: jnp.sum(grads[1]["pos"][..., 0, 2]), num_steps,
+                         batch, settings)
 
 
 def _joint_height(grads):
-    return grads["qpos"][2]
+    return jnp.sum(grads["qpos"][..., 2])
 
 
 def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
@@ -131,10 +139,10 @@ def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
             return generalized_loss(qpos, qvel)
 
         return _gradient_row("mjx", "Euler, 1 solver iteration", "mass, friction, initial qpos", loss, (theta,),
-                             0, _joint_height, num_steps, settings)
+                             0, _joint_height, num_steps, 1, settings)
 
 
-def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
+def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
     """Brax's row (``engine``: ``"brax_spring"`` or ``"brax_positional"``): ``pipeline.step`` scanned."""
     mjcf, pipeline = mods["mjcf"], mods["pipeline"]
     with peers.x64(False), warnings.catch_warnings():
@@ -142,8 +150,8 @@ def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict) -> pe
         system = mjcf.loads(peers.drop_mjcf())
         zero_qd = jnp.zeros(system.qd_size(), jnp.float32)
         act = jnp.zeros(system.act_size(), jnp.float32)
-        theta = dict(mass=system.link.inertia.mass, friction=system.geom_friction,
-                     qpos=jnp.asarray(system.init_q, jnp.float32))
+        qpos = system.init_q if batch == 1 else peers._free_qpos(system.init_q, 1, peers.world_shifts(batch, 3))
+        theta = dict(mass=system.link.inertia.mass, friction=system.geom_friction, qpos=jnp.asarray(qpos, jnp.float32))
 
         def loss(theta):
             stepped = system.replace(geom_friction=theta["friction"]).tree_replace(
@@ -153,12 +161,14 @@ def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict) -> pe
                 state = pipeline.step(stepped, state, act)
                 return state, (state.q, state.qd)
 
-            first = pipeline.init(stepped, theta["qpos"], zero_qd)
-            _, (qpos, qvel) = jax.lax.scan(one, first, None, length=num_steps)
-            return generalized_loss(qpos, qvel)
+            def world(start):
+                _, (qpos, qvel) = jax.lax.scan(one, pipeline.init(stepped, start, zero_qd), None, length=num_steps)
+                return generalized_loss(qpos, qvel)
+
+            return world(theta["qpos"]) if batch == 1 else jnp.mean(jax.vmap(world)(theta["qpos"]))
 
         return _gradient_row(engine, "pipeline.step, system from MJCF", "mass, friction, initial qpos", loss,
-                             (theta,), 0, _joint_height, num_steps, settings)
+                             (theta,), 0, _joint_height, num_steps, batch, settings)
 
 
 def gradient_table(rows: Sequence[peers.PeerRow]) -> str:
@@ -168,22 +178,26 @@ def gradient_table(rows: Sequence[peers.PeerRow]) -> str:
         rows: all rows (other scenes are ignored).
 
     Returns:
-        The table; one speed column per jaxrb row (its gradient's body-steps/s
-        over the row's).
+        The table, its rows by batch; one speed column per jaxrb setting: its
+        gradient's body-steps/s over the row's at the same batch (— where it
+        has no row at that batch).
     """
-    chosen = [r for r in rows if r.scene == "gradient"]
-    mine = [r for r in chosen if r.engine == "jaxrb"]
-    ordered = mine + [r for r in chosen if r.engine != "jaxrb"]
-    headers = (["engine", "setting", "with respect to", "forward (ms)", "gradient (ms)", "gradient / forward",
-                "gradient body-steps/s", "compile: forward, gradient (s)", "all finite", "loss"]
-               + [f"jaxrb {r.setting} / this" for r in mine])
+    chosen = sorted((r for r in rows if r.scene == "gradient"), key=lambda r: (r.batch, r.engine != "jaxrb"))
+    settings = list(dict.fromkeys(r.setting for r in chosen if r.engine == "jaxrb"))
+    headers = (["engine", "setting", "worlds", "with respect to", "forward (ms)", "gradient (ms)",
+                "gradient / forward", "gradient body-steps/s", "compile: forward, gradient (s)", "all finite",
+                "loss"] + [f"jaxrb {setting} / this" for setting in settings])
     table_rows = []
-    for row in ordered:
+    for row in chosen:
         m = row.metrics
+        speeds = []
+        for setting in settings:
+            mine = [r for r in chosen if r.engine == "jaxrb" and r.setting == setting and r.batch == row.batch]
+            speeds.append(fmt_fixed(peers.ratio(mine[0].body_steps_per_s, row.body_steps_per_s), 1) + "×"
+                          if mine else "—")
         table_rows.append(
-            [peers.ENGINE_NAMES[row.engine], row.setting, m["wrt"], fmt_fixed(1e3 * m["forward_s"], 2),
+            [peers.ENGINE_NAMES[row.engine], row.setting, row.batch, m["wrt"], fmt_fixed(1e3 * m["forward_s"], 2),
              fmt_fixed(1e3 * row.run_s, 2), fmt_fixed(m["ratio"], 2) + "×", fmt_si(row.body_steps_per_s),
              f"{fmt_fixed(m['forward_compile_s'], 1)}, {fmt_fixed(row.compile_s, 1)}",
-             "yes" if m["finite"] else "**NO**", fmt_fixed(m["loss"], 4)]
-            + [fmt_fixed(peers.ratio(r.body_steps_per_s, row.body_steps_per_s), 1) + "×" for r in mine])
-    return markdown_table(headers, table_rows, align=["l", "l", "l"] + ["r"] * (len(headers) - 3))
+             "yes" if m["finite"] else "**NO**", fmt_fixed(m["loss"], 4)] + speeds)
+    return markdown_table(headers, table_rows, align=["l", "l"] + ["r"] * (len(headers) - 2))

@@ -38,7 +38,8 @@ peer's own scene API (Jax2D, pymunk):
   0.4) kg m², ω0 = (0.1, 15, 0.1) rad/s): largest flip-time error against
   :func:`jaxrb.analytic.flip_times` for MuJoCo C's RK4 (float64), MJX's RK4
   (float32) and jaxrb's best integrator (float32 and float64) at each h.
-* **gradient**: the drop's gradient in one world, jaxrb against the peers
+* **gradient**: the drop's gradient in one world (and, against Brax spring,
+  in a batch of worlds), jaxrb against the peers
   that differentiate (MJX, Brax): forward and gradient time, whether every
   entry is finite, and the loss (:mod:`jaxrb.bench.peer_gradients`).
 
@@ -59,7 +60,8 @@ this batch, for the pymunk target; ``None`` to skip), ``pyramid_big_seconds``
 and ``pyramid_jaxrb``; ``flip_steps``,
 ``flip_horizon`` and ``flip_configs`` (jaxrb (integrator, orientation) pairs;
 the best per h counts), ``flip_mjx`` (False: MJX's flip skipped);
-``gradient_steps`` (T) and ``gradient_rounds`` (timed rounds at most);
+``gradient_steps`` (T), ``gradient_rounds`` (timed rounds at most) and
+``gradient_batch`` (worlds of the batched rows; ``None`` to skip);
 ``repeats``/``budget_s`` for timing; ``with_jaxrb``
 (False: peers only).
 
@@ -179,6 +181,7 @@ FULL = dict(
     peers_flip_steps=(1 / 60, 1 / 240, 1 / 1000), peers_flip_horizon=20.0,
     peers_flip_configs=(("rk4", None), ("rk4_body", None), ("implicit_gyro", "exp_map")), peers_flip_mjx=True,
     peers_gradient_steps=1000, peers_gradient_rounds=101,  # rounds stop once peers_budget_s is spent
+    peers_gradient_batch=1024,
     peers_repeats=3, peers_budget_s=5.0, peers_with_jaxrb=True,
 )
 
@@ -999,6 +1002,12 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
         for engine in ("brax_spring", "brax_positional"):
             attempt(engine, "gradient", lambda e=engine: peer_gradients.brax_gradient(e, modules[e], steps,
                                                                                       settings))
+        batch = settings["peers_gradient_batch"]
+        if batch:  # MJX's and Brax positional's gradients are NaN in one world, and 5-20x slower
+            attempt("jaxrb", "gradient", lambda: peer_gradients.jaxrb_gradient("penalty", "adjoint", steps,
+                                                                               settings, batch))
+            attempt("brax_spring", "gradient", lambda: peer_gradients.brax_gradient(
+                "brax_spring", modules["brax_spring"], steps, settings, batch))
     return rows, skipped
 
 
@@ -1127,12 +1136,13 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
     if any(r.scene == "gradient" for r in rows):
         from jaxrb.bench import peer_gradients
 
-        parts += [f"**{SCENE_TITLES['gradient']}**: the box drop in one world at h = 2 ms for "
-                  f"{settings['peers_gradient_steps']} steps, float32; the gradient of the mean over the steps "
+        parts += [f"**{SCENE_TITLES['gradient']}**: the box drop at h = 2 ms for "
+                  f"{settings['peers_gradient_steps']} steps, float32, in one world and in a batch of worlds "
+                  "(the loss their mean); the gradient of the mean over the steps "
                   "of the squares of position, velocity, angular velocity and the quaternion's vector part, "
                   "the same loss in every engine, so a loss far from the others' is a different motion. MJX "
                   "runs one solver iteration: its solver's `while_loop` cannot be reversed (MuJoCo issue #2259). "
-                  "Speed columns: jaxrb's gradient body-steps/s over the row's.", "",
+                  "Speed columns: jaxrb's gradient body-steps/s over the row's at the same batch.", "",
                   peer_gradients.gradient_table(rows)]
     targets = evaluate_targets(rows)
     if targets:
