@@ -200,4 +200,4 @@ def gradient_table(rows: Sequence[peers.PeerRow]) -> str:
              fmt_fixed(1e3 * row.run_s, 2), fmt_fixed(m["ratio"], 2) + "×", fmt_si(row.body_steps_per_s),
              f"{fmt_fixed(m['forward_compile_s'], 1)}, {fmt_fixed(row.compile_s, 1)}",
              "yes" if m["finite"] else "**NO**", fmt_fixed(m["loss"], 4)] + speeds)
-    return markdown_table(headers, table_rows, align=["l", "l"] + ["r"] * (len(headers) - 2))
+    return markdown_table(headers, table_rows, align=["l", "l", "r", "l"] + ["r"] * (len(headers) - 4))
