@@ -97,7 +97,7 @@ def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_step
 
 
 def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
-    """jaxrb's row: ``contact_model`` at h = 2 ms over ``batch`` worlds, reverse mode ``method`` (``gradients.METHODS``)."""
+    """jaxrb's row: ``contact_model`` at h = 2 ms, ``batch`` worlds, reverse mode ``method`` (gradients.METHODS)."""
     import jaxrb as rb
 
     model, params, state = contact.drop_scene().build(dtype=jnp.float32, dt=peers.PEER_STEP, contact=contact_model)
@@ -143,7 +143,7 @@ def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
 
 
 def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
-    """Brax's row over ``batch`` worlds (``engine``: ``"brax_spring"`` or ``"brax_positional"``): ``pipeline.step`` scanned."""
+    """Brax's row, ``batch`` worlds (``engine``: ``"brax_spring"`` or ``"brax_positional"``; ``pipeline.step``)."""
     mjcf, pipeline = mods["mjcf"], mods["pipeline"]
     with peers.x64(False), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # Brax warns that it is unmaintained on every load
