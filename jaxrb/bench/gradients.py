@@ -105,6 +105,11 @@ TIME_BUDGET_S = 5.0
 TARGET_RATIO = 3.0
 
 
+def all_finite(tree) -> bool:
+    """Whether every entry of every array in ``tree`` (a gradient) is finite."""
+    return all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(tree))
+
+
 def trajectory_loss(trajectory) -> jax.Array:
     """Mean squares of pos, vel, angvel (and quat's vector part in 3D) over a trajectory.
 
@@ -217,7 +222,7 @@ def gradient_time(name: str, num_steps: int, repeats: int = 5, dtype="float32",
             (forward, grad), params, state, repeats=repeats, budget_s=budget_s)
         if not bool(jnp.isfinite(value)):
             raise FloatingPointError(f"gradients bench {name}: non-finite loss {value}")
-        if not all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(gradient)):
+        if not all_finite(gradient):
             raise FloatingPointError(f"gradients bench {name}: non-finite gradient ({method})")
         times.append(dict(kind="time", scene=name, batch=batch, num_steps=num_steps, method=method,
                           checkpoint=method == "checkpoint", forward_compile_s=forward_compile_s,

@@ -44,7 +44,6 @@ from typing import Sequence
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxrb.bench import contact, gradients, peers
 from jaxrb.bench.report import fmt_fixed, fmt_si, markdown_table
@@ -90,10 +89,9 @@ def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_step
     gradient, compile_s = compile_jitted(jax.grad(loss, argnums), *args)
     (forward_s, _, value), (grad_s, _, grads) = time_alternated(
         (forward, gradient), *args, repeats=settings["peers_gradient_rounds"], budget_s=settings["peers_budget_s"])
-    finite = all(bool(np.all(np.isfinite(leaf))) for leaf in jax.tree_util.tree_leaves(grads))
     return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, batch, 1, num_steps, compile_s, grad_s, dict(
         wrt=wrt, forward_s=forward_s, forward_compile_s=forward_compile_s, ratio=grad_s / forward_s,
-        loss=float(value), finite=finite, height_gradient=float(height_of(grads))))
+        loss=float(value), finite=gradients.all_finite(grads), height_gradient=float(height_of(grads))))
 
 
 def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
