@@ -43,11 +43,33 @@ def test_readme_python_examples_run():
     assert namespace["traj"].pos.shape[0] == 840
 
 
+LINKING_DOCUMENTS = ("README.md", "docs/guide.md", "docs/performance.md", "docs/accelerator.md")
+
+
 def test_readme_and_guide_links_point_at_files():
-    for document in ("README.md", "docs/guide.md", "docs/performance.md"):
+    for document in LINKING_DOCUMENTS:
         text = (ROOT / document).read_text()
         targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
         assert targets, document
         for target in targets:
             if "://" not in target:
                 assert (ROOT / document).parent.joinpath(target).exists(), f"{document}: {target}"
+
+
+def heading_anchors(path):
+    """The anchors GitHub gives a Markdown file's headings: lower case, punctuation dropped, spaces as hyphens."""
+    headings = re.findall(r"^#+ (.+)$", path.read_text(), re.M)
+    return {re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-") for heading in headings}
+
+
+def test_links_to_sections_name_existing_headings():
+    checked = 0
+    for document in LINKING_DOCUMENTS:
+        path = ROOT / document
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)#([^)\s]+)\)", path.read_text()):
+            if "://" in target:
+                continue
+            linked = path.parent.joinpath(target) if target else path
+            assert anchor in heading_anchors(linked), f"{document}: {target}#{anchor}"
+            checked += 1
+    assert checked > 10
