@@ -6,7 +6,6 @@ contact against a plane uses the same code as one between two bodies.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
@@ -84,14 +83,6 @@ def tangent_basis(normal):
     first = cross(normal, helper)
     first = first / jnp.sqrt(jnp.sum(first * first, axis=-1, keepdims=True))
     return first, cross(normal, first)
-
-
-def contact_counts(model: Model, contacts):
-    """(n + 1,) number of active contacts touching each body (mass splitting)."""
-    active = contacts.active.astype(contacts.dist.dtype)
-    num = model.num_bodies + 1
-    return (jax.ops.segment_sum(active, contacts.body_a, num)
-            + jax.ops.segment_sum(active, contacts.body_b, num))
 
 
 def carried_impulses(state: State, contacts):

@@ -66,7 +66,7 @@ import jax.numpy as jnp
 from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
 from jaxrb.collision.pairs import round_sides, row_summer, row_taker
-from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc, contact_counts,
+from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc,
                                   moment, pad, relative_velocity, spin_cross, tangent_basis,
                                   world_inverse_inertia)
 from jaxrb.math import rotate2
@@ -218,6 +218,18 @@ def _split(model, inv_mass, inv_inertia, split):
     return inv_mass * split, inv_inertia * (split[:, None, None] if model.dim == 3 else split)
 
 
+def _contact_counts(model, contacts):
+    """(n + 1,) number of active contacts touching each body (mass splitting); 0 for the static row.
+
+    Summed with the pair table's static slices where it fixes the bodies: a
+    scatter in the solver's loops keeps XLA's CPU backend from compiling them
+    as one function (docs/performance.md, sections 8 and 29).
+    """
+    active = contacts.active.astype(contacts.dist.dtype)
+    add = row_summer(model, contacts.body_a, contacts.body_b)
+    return pad(add(active, 0) + add(active, 1))
+
+
 def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     """Fix arms, directions and effective masses for the step."""
     a, b = contacts.body_a, contacts.body_b
@@ -229,12 +241,12 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     arm_a, arm_b = contacts.point - pos_a, contacts.point - pos_b
     inv_mass = 1.0 / params.mass
     inv_inertia = world_inverse_inertia(model, params, state, padded=False)
-    split = (jnp.maximum(contact_counts(model, contacts), 1.0) if model.solver == "jacobi"
+    split = (jnp.maximum(_contact_counts(model, contacts), 1.0) if model.solver == "jacobi"
              else jnp.ones(inv_mass.shape[0] + 1, inv_mass.dtype))
     normal = contacts.normal
     tangents = tangent_basis(normal) if model.dim == 3 else (jnp.stack([-normal[:, 1], normal[:, 0]], -1),)
     maps = _row_maps(model, take, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia)
-    masses = [_effective_mass(model, maps, k, split[a], split[b]) for k in range(1 + len(tangents))]
+    masses = [_effective_mass(model, maps, k, take(split, 0), take(split, 1)) for k in range(1 + len(tangents))]
     rotation_a, rotation_b = _row_rotations(model, state, take)
     normal_mass = masses[0]
     round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
@@ -265,7 +277,9 @@ def current_separation(model: Model, prep: Prepared, state: State):
 
 
 def _relative_velocity(model, prep, vel, angvel):
-    return relative_velocity(model, vel, angvel, prep.body_a, prep.body_b, prep.arm_a, prep.arm_b)
+    """(C, dim) relative velocity at every contact, from padded (n + 1, ...) velocities."""
+    return relative_velocity(model, vel, angvel, prep.body_a, prep.body_b, prep.arm_a, prep.arm_b,
+                             row_taker(model, prep.body_a, prep.body_b))
 
 
 def normal_velocity(model: Model, prep: Prepared, state: State):
@@ -335,11 +349,11 @@ def _local_velocity_change(model, prep, impulse):
     Uses the (possibly split) masses in ``prep``, i.e. the contact's private
     copies of its two bodies: Tonge's sub-bodies in the Jacobi scheme.
     """
-    a, b = prep.body_a, prep.body_b
+    take = row_taker(model, prep.body_a, prep.body_b)  # the static row reads as zero: no mass to move
     inv_mass, inv_inertia = _split(model, prep.inv_mass, prep.inv_inertia, prep.split)
-    change = (inv_mass[a] + inv_mass[b])[:, None] * impulse
-    for body, arm in ((a, prep.arm_a), (b, prep.arm_b)):
-        spin = apply_inverse_inertia(model, inv_inertia[body], moment(model, arm, impulse))
+    change = (take(inv_mass, 0) + take(inv_mass, 1))[:, None] * impulse
+    for side, arm in enumerate((prep.arm_a, prep.arm_b)):
+        spin = apply_inverse_inertia(model, take(inv_inertia, side), moment(model, arm, impulse))
         change = change + spin_cross(model, spin, arm)
     return change
 
