@@ -8,6 +8,9 @@ step). Scenes (float32 by default, like the other throughput benchmarks):
 
 * **box_bounce**: box (half 0.1 m, 1 kg) dropped from 0.5 m with a tumble,
   restitution 0.5, onto a plane; impulse contact, dt = 1/60 s, 4 substeps.
+* **box_bounce_jacobi**: the same, with the Jacobi impulse solver (all rows
+  of a pass at once on split masses; ``jaxrb.contact.impulse``), whose
+  passes have no row loop to reverse.
 * **box_drop_penalty**: the same box and drop with penalty contact at the
   box-drop benchmark's step, dt = 2 ms, one substep (the rollout's
   plane-penalty path, :mod:`jaxrb.plane_penalty`), so that both contact
@@ -38,7 +41,7 @@ states, Params shared, the loss their mean).
 **Methods** (:data:`METHODS`): ``autodiff`` (``rb.rollout``'s reverse
 mode), ``checkpoint`` (the same with ``checkpoint=True``) and ``adjoint``
 (``rb.rollout(..., adjoint=True)``, :mod:`jaxrb.adjoint`; only where the
-scene's model has one: tumble and box_drop_penalty, not box_bounce).
+scene's model has one: tumble and box_drop_penalty, not the impulse scenes).
 """
 
 from __future__ import annotations
@@ -73,6 +76,8 @@ def tumble_scene():
 SCENES = {
     "box_bounce": (box_bounce_scene, "box half 0.1 m dropped from 0.5 m with a tumble, e=0.5, impulse",
                    dict(dt=1 / 60, substeps=4, contact="impulse")),
+    "box_bounce_jacobi": (box_bounce_scene, "the same bounce, impulse with the Jacobi solver",
+                          dict(dt=1 / 60, substeps=4, contact="impulse", solver="jacobi")),
     "box_drop_penalty": (box_bounce_scene, "the same box and drop, penalty contact, dt = 2 ms",
                          dict(dt=2e-3, substeps=1, contact="penalty")),
     "tumble": (tumble_scene, "torque-free tumbling body, semi-implicit",
@@ -93,7 +98,7 @@ METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": d
 #: ten medians of 5 in one process spread over 2.3-3.8x for the penalty box
 #: drop's adjoint, whose medians of 201 read 3.2-3.8x in three processes
 #: (docs/performance.md, section 22).
-DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_drop_penalty"),
+DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_bounce_jacobi", "box_drop_penalty"),
                         gradient_methods=tuple(METHODS), gradient_memory_steps=(1000, 10000),
                         gradient_time_steps=1000, gradient_batch=1024,
                         gradient_rounds=201, gradient_dtype="float32")
