@@ -277,16 +277,17 @@ def current_separation(model: Model, prep: Prepared, state: State):
 
 
 def _relative_velocity(model, prep, vel, angvel):
-    """(C, dim) relative velocity at every contact, from padded (n + 1, ...) velocities."""
+    """(C, dim) relative velocity at every contact from (n, ...) or padded (n + 1, ...) velocities.
+
+    Read with the pair table's slices, which never touch the padded row.
+    """
     return relative_velocity(model, vel, angvel, prep.body_a, prep.body_b, prep.arm_a, prep.arm_b,
                              row_taker(model, prep.body_a, prep.body_b))
 
 
 def normal_velocity(model: Model, prep: Prepared, state: State):
     """v_rel = n·(v_A − v_B) at every contact for the velocities of ``state``. Returns (C,)."""
-    rel_vel = relative_velocity(model, state.vel, state.angvel, prep.body_a, prep.body_b, prep.arm_a,
-                                prep.arm_b, row_taker(model, prep.body_a, prep.body_b))
-    return jnp.sum(rel_vel * prep.normal, axis=-1)
+    return jnp.sum(_relative_velocity(model, prep, state.vel, state.angvel) * prep.normal, axis=-1)
 
 
 def apply_impulses(model, prep, vel, angvel, impulse):
