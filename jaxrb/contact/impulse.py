@@ -232,11 +232,10 @@ def _contact_counts(model, contacts):
 
 def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     """Fix arms, directions and effective masses for the step."""
-    a, b = contacts.body_a, contacts.body_b
     # Rows read body values with static slices where the pair table fixes them:
     # a gather's reverse-mode transpose is a scatter, and a loop holding a
     # scatter is not compiled as one function (docs/performance.md, section 8).
-    take = row_taker(model, a, b)
+    take = row_taker(model, contacts.body_a, contacts.body_b)
     pos_a, pos_b = take(state.pos, 0), take(state.pos, 1)
     arm_a, arm_b = contacts.point - pos_a, contacts.point - pos_b
     inv_mass = 1.0 / params.mass
