@@ -1,5 +1,6 @@
 """The promises the repository makes about itself: README commands and CI."""
 
+import functools
 import pathlib
 import re
 
@@ -56,6 +57,7 @@ def test_readme_and_guide_links_point_at_files():
                 assert (ROOT / document).parent.joinpath(target).exists(), f"{document}: {target}"
 
 
+@functools.lru_cache(maxsize=None)
 def heading_anchors(path):
     """The anchors GitHub gives a Markdown file's headings: lower case, punctuation dropped, spaces as hyphens."""
     headings = re.findall(r"^#+ (.+)$", path.read_text(), re.M)
