@@ -112,8 +112,9 @@ def _impulse_substeps(model: Model):
         lam = carried_impulses(state, contacts)  # warm start
         soft = impulse.soft_parameters(params, h)
 
-        def apply(state, impulses):
-            vel, angvel = impulse.apply_impulses(model, prep, pad(state.vel), pad(state.angvel), impulses)
+        def warm_start(state, lam):
+            along = [lam[:, 0]] + impulse.tangent_components(prep, lam[:, 1:])
+            vel, angvel = impulse.push_rows(model, prep, pad(state.vel), pad(state.angvel), along)
             return _unpad(state, vel, angvel)
 
         def solve(state, lam, prep, soft, passes):
@@ -147,7 +148,7 @@ def _impulse_substeps(model: Model):
                 prep_now = prep_now.replace(active=prep_now.active & ~owned)
                 lam = jnp.where(owned[:, None], 0.0, lam)  # no warm start for a row the solver skips
             # Warm start: the substep begins with the last substep's (or step's) impulses.
-            state = apply(state, lam[:, :1] * prep_now.normal + lam[:, 1:])
+            state = warm_start(state, lam)
             state, lam = solve(state, lam, prep_now, soft, model.iterations)
             state = position_phase(model, params, state, h)
             if len(impact_rows):

@@ -67,7 +67,7 @@ from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
 from jaxrb.collision.pairs import round_sides, row_summer, row_taker
 from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc,
-                                  moment, pad, relative_velocity, spin_cross, tangent_basis,
+                                  moment, pad, tangent_basis,
                                   world_inverse_inertia)
 from jaxrb.math import rotate2
 from jaxrb.types import Array, Model, Params, State
@@ -80,7 +80,6 @@ class Prepared:
     Attributes:
         body_a, body_b: (C,) body rows (n is the static row).
         normal: (C, dim); tangents: tuple of (C, dim) unit tangents (2 in 3D, 1 in 2D).
-        arm_a, arm_b: (C, dim) world contact point minus each centre of mass.
         anchor_a, anchor_b: (C, dim) body-frame point that carries each side's
             contact: the contact point itself, or, for a sphere or circle, its
             centre (rotating a ball leaves its surface in place, so a rolling
@@ -96,18 +95,16 @@ class Prepared:
             (``Params.impulse_smoothing``; 0: the exact clamp).
         inv_mass: (n + 1,) padded inverse masses (true ones: impulses are
             applied to the whole body).
-        inv_inertia: padded world inverse inertia, likewise.
-        split: (n + 1,) mass-splitting factor k per body (contacts touching it
-            under ``jacobi``, else 1): each contact sees k·m⁻¹ and k·I⁻¹.
-        maps: the :class:`RowMaps` of every row, for the sequential solver.
+        maps: the :class:`RowMaps` of every row: how it reads and moves its
+            bodies. Under ``jacobi`` each body's mass is split among the k
+            contacts touching it (each contact sees k·m⁻¹ and k·I⁻¹), which the
+            effective masses and the maps' couplings include.
     """
 
     body_a: Array
     body_b: Array
     normal: Array
     tangents: tuple
-    arm_a: Array
-    arm_b: Array
     anchor_a: Array
     anchor_b: Array
     start_a: Array
@@ -121,8 +118,6 @@ class Prepared:
     active: Array
     smoothing: Array
     inv_mass: Array
-    inv_inertia: Array
-    split: Array
     maps: "RowMaps"
 
 
@@ -143,7 +138,12 @@ class RowMaps:
             inertia, (C,) in 2D.
         inv_mass_a, inv_mass_b: (C,) true inverse masses of each row's bodies.
         coupling: (C,) change of the second tangent's speed per unit impulse
-            along the first (t₂·K·t₁, K the row's inverse mass matrix); 0 in 2D.
+            along the first (t₂·K·t₁, K the row's inverse mass matrix of the
+            split sub-bodies: the true one unless ``jacobi``); 0 in 2D.
+        normal_coupling: under ``jacobi``, a tuple (one per tangent) of (C,)
+            changes of the tangent's speed per unit normal impulse (t·K·n);
+            else None. (With the true masses the sequential rows re-read their
+            bodies' speeds instead.)
     """
 
     turn_a: tuple
@@ -153,25 +153,31 @@ class RowMaps:
     inv_mass_a: Array
     inv_mass_b: Array
     coupling: Array
+    normal_coupling: tuple = None
 
 
-def _row_maps(model, take, arm_a, arm_b, directions, inv_mass, inv_inertia) -> RowMaps:
+def _row_maps(model, take, arm_a, arm_b, directions, inv_mass, inv_inertia, split) -> RowMaps:
     """:class:`RowMaps` of rows with arms (C, dim) and unit ``directions``.
 
     ``take(array, side)`` reads the rows' bodies from the (n, ...) per-body
-    ``inv_mass`` and world ``inv_inertia`` (:func:`jaxrb.collision.pairs.row_taker`).
+    ``inv_mass``, world ``inv_inertia`` and mass-splitting factors ``split``
+    (:func:`jaxrb.collision.pairs.row_taker`).
     """
     turn = lambda arm: tuple(moment(model, arm, d) for d in directions)
     spin = lambda row_inertia, turns: tuple(apply_inverse_inertia(model, row_inertia, t) for t in turns)
     turn_a, turn_b = turn(arm_a), turn(arm_b)
     spin_a, spin_b = spin(take(inv_inertia, 0), turn_a), spin(take(inv_inertia, 1), turn_b)
     inv_mass_a, inv_mass_b = take(inv_mass, 0), take(inv_mass, 1)
-    if model.dim == 3:
-        coupling = _dot(model, turn_a[2], spin_a[1]) + _dot(model, turn_b[2], spin_b[1])
-    else:
-        coupling = jnp.zeros_like(inv_mass_a)
+    split_a, split_b = take(split, 0), take(split, 1)
+    # Directions are orthogonal, so between two of them only the angular parts couple.
+    couple = lambda k, j: (split_a * _dot(model, turn_a[k], spin_a[j])
+                           + split_b * _dot(model, turn_b[k], spin_b[j]))
+    coupling = couple(2, 1) if model.dim == 3 else jnp.zeros_like(inv_mass_a)
+    normal_coupling = (tuple(couple(k, 0) for k in range(1, len(directions))) if model.solver == "jacobi"
+                       else None)
     return RowMaps(turn_a=turn_a, turn_b=turn_b, spin_a=spin_a, spin_b=spin_b,
-                   inv_mass_a=inv_mass_a, inv_mass_b=inv_mass_b, coupling=coupling)
+                   inv_mass_a=inv_mass_a, inv_mass_b=inv_mass_b, coupling=coupling,
+                   normal_coupling=normal_coupling)
 
 
 def _dot(model, x, y):
@@ -213,11 +219,6 @@ def _to_body(model, rotation, vector):
     return rotate2(-rotation, vector)
 
 
-def _split(model, inv_mass, inv_inertia, split):
-    """Inverse mass and inertia of Tonge's sub-bodies: k·m⁻¹ and k·I⁻¹."""
-    return inv_mass * split, inv_inertia * (split[:, None, None] if model.dim == 3 else split)
-
-
 def _contact_counts(model, contacts):
     """(n + 1,) number of active contacts touching each body (mass splitting); 0 for the static row.
 
@@ -244,7 +245,7 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
              else jnp.ones(inv_mass.shape[0] + 1, inv_mass.dtype))
     normal = contacts.normal
     tangents = tangent_basis(normal) if model.dim == 3 else (jnp.stack([-normal[:, 1], normal[:, 0]], -1),)
-    maps = _row_maps(model, take, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia)
+    maps = _row_maps(model, take, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia, split)
     masses = [_effective_mass(model, maps, k, take(split, 0), take(split, 1)) for k in range(1 + len(tangents))]
     rotation_a, rotation_b = _row_rotations(model, state, take)
     normal_mass = masses[0]
@@ -254,7 +255,6 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     anchor_b = jnp.where(round_b, take(centre, 1), _to_body(model, rotation_b, arm_b))
     return Prepared(
         body_a=contacts.body_a, body_b=contacts.body_b, normal=normal, tangents=tangents,
-        arm_a=arm_a, arm_b=arm_b,
         anchor_a=anchor_a, anchor_b=anchor_b,
         start_a=pos_a + _to_world(model, rotation_a, anchor_a),
         start_b=pos_b + _to_world(model, rotation_b, anchor_b),
@@ -263,7 +263,7 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
         friction=contacts.friction, restitution=contacts.restitution,
         approach=contacts.normal_velocity, active=contacts.active,
         smoothing=normal_mass * params.impulse_smoothing,
-        inv_mass=pad(inv_mass), inv_inertia=pad(inv_inertia), split=split, maps=maps)
+        inv_mass=pad(inv_mass), maps=maps)
 
 
 def current_separation(model: Model, prep: Prepared, state: State):
@@ -275,34 +275,74 @@ def current_separation(model: Model, prep: Prepared, state: State):
     return prep.separation + jnp.sum(prep.normal * (moved_a - moved_b), axis=-1)
 
 
-def _relative_velocity(model, prep, vel, angvel):
-    """(C, dim) relative velocity at every contact from (n, ...) or padded (n + 1, ...) velocities.
+# Every contact's rows at once (the Jacobi passes, the warm start, the
+# approach speeds) read and move the bodies through the RowMaps, as the
+# sequential rows do, not through the arms and the 3x3 inverse inertia: the
+# per-body 3x3 products and the arms' cross products made most of the Jacobi
+# gradient (the cotangents of the arms and inertias summed over every pass;
+# docs/performance.md, section 30).
 
-    Read with the pair table's slices, which never touch the padded row.
+def _directions(prep: Prepared) -> tuple:
+    """The rows' unit directions: (normal, *tangents), each (C, dim)."""
+    return (prep.normal,) + tuple(prep.tangents)
+
+
+def row_speeds(model: Model, prep: Prepared, vel, angvel, count=None) -> list:
+    """Relative speed of every contact along its first ``count`` directions (default all).
+
+    Args:
+        vel, angvel: (n, ...) or padded (n + 1, ...) body velocities; the pair
+            table's slices never read the padded row.
+
+    Returns:
+        A list of (C,) speeds d·(v_A − v_B) + (r_A × d)·ω_A − (r_B × d)·ω_B:
+        the normal's first, then the tangents'.
     """
-    return relative_velocity(model, vel, angvel, prep.body_a, prep.body_b, prep.arm_a, prep.arm_b,
-                             row_taker(model, prep.body_a, prep.body_b))
+    take = row_taker(model, prep.body_a, prep.body_b)
+    linear = take(vel, 0) - take(vel, 1)
+    spin_a, spin_b = take(angvel, 0), take(angvel, 1)
+    maps = prep.maps
+    return [jnp.sum(direction * linear, axis=-1) + _dot(model, turn_a, spin_a) - _dot(model, turn_b, spin_b)
+            for direction, turn_a, turn_b in zip(_directions(prep)[:count], maps.turn_a, maps.turn_b)]
 
 
 def normal_velocity(model: Model, prep: Prepared, state: State):
     """v_rel = n·(v_A − v_B) at every contact for the velocities of ``state``. Returns (C,)."""
-    return jnp.sum(_relative_velocity(model, prep, state.vel, state.angvel) * prep.normal, axis=-1)
+    return row_speeds(model, prep, state.vel, state.angvel, count=1)[0]
 
 
-def apply_impulses(model, prep, vel, angvel, impulse):
-    """Apply world impulses (C, dim) at the contacts: +P on A, −P on B."""
+def push_rows(model: Model, prep: Prepared, vel, angvel, impulses):
+    """Apply impulses along every contact's directions to the whole bodies: +P on A, −P on B.
+
+    Args:
+        vel, angvel: padded (n + 1, ...) body velocities.
+        impulses: a list of (C,) impulses along the first len(impulses)
+            directions (normal, then tangents).
+
+    Returns:
+        (vel, angvel), padded.
+    """
     add = row_summer(model, prep.body_a, prep.body_b)  # static slices where the pair table fixes the bodies
-    summed = lambda values, side: pad(add(values, side))
-    linear = summed(impulse, 0) - summed(impulse, 1)
-    angular = summed(moment(model, prep.arm_a, impulse), 0) - summed(moment(model, prep.arm_b, impulse), 1)
-    inv_mass = prep.inv_mass[:, None]
-    return vel + inv_mass * linear, angvel + apply_inverse_inertia(model, prep.inv_inertia, angular)
+    along = lambda vectors: sum(_scale(p, v) for p, v in zip(impulses, vectors))
+    linear = along(_directions(prep))
+    maps = prep.maps
+    angular = add(along(maps.spin_a), 0) - add(along(maps.spin_b), 1)
+    return vel + prep.inv_mass[:, None] * pad(add(linear, 0) - add(linear, 1)), angvel + pad(angular)
 
 
-def _normal_update(prep, rel_vel, lam, separation, h, soft):
-    """New accumulated normal impulse (C,) of every contact row (see :func:`_normal_impulse`)."""
-    vn = jnp.sum(rel_vel * prep.normal, axis=-1)
-    return _normal_impulse(vn, lam[:, 0], separation, prep.normal_mass, prep.smoothing, prep.active, h, soft)
+def _scale(impulse, vector):
+    """(C,) impulses times (C, dim) vectors, or times (C,) 2D angular scalars."""
+    return impulse[:, None] * vector if vector.ndim == 2 else impulse * vector
+
+
+def tangent_components(prep: Prepared, vectors) -> list:
+    """(C,) components of (C, dim) vectors along each row tangent."""
+    return [jnp.sum(vectors * tangent, axis=-1) for tangent in prep.tangents]
+
+
+def world_friction(prep: Prepared, friction) -> Array:
+    """(C, dim) friction vectors from their (C,) components along the tangents."""
+    return sum(f[:, None] * tangent for f, tangent in zip(friction, prep.tangents))
 
 
 def _normal_impulse(vn, old, separation, normal_mass, smoothing, active, h, soft):
@@ -343,37 +383,6 @@ def smooth_clamp(impulse, width):
     return jnp.where(smooth, jnp.where(negative, tail, 0.5 * (impulse + root)), jnp.maximum(impulse, 0.0))
 
 
-def _local_velocity_change(model, prep, impulse):
-    """Change of each contact's own relative velocity when it alone applies ``impulse``.
-
-    Uses the (possibly split) masses in ``prep``, i.e. the contact's private
-    copies of its two bodies: Tonge's sub-bodies in the Jacobi scheme.
-    """
-    take = row_taker(model, prep.body_a, prep.body_b)  # the static row reads as zero: no mass to move
-    inv_mass, inv_inertia = _split(model, prep.inv_mass, prep.inv_inertia, prep.split)
-    change = (take(inv_mass, 0) + take(inv_mass, 1))[:, None] * impulse
-    for side, arm in enumerate((prep.arm_a, prep.arm_b)):
-        spin = apply_inverse_inertia(model, take(inv_inertia, side), moment(model, arm, impulse))
-        change = change + spin_cross(model, spin, arm)
-    return change
-
-
-def _friction_update(model, prep, rel_vel, lam, normal_impulse):
-    """New accumulated friction impulse vector (C, dim) of every row, clamped to the cone μ·λ_n.
-
-    The tangent directions are solved one after the other, each seeing the
-    other's effect on this contact (a small block Gauss–Seidel).
-    """
-    friction = lam[:, 1:]
-    for tangent, mass in zip(prep.tangents, prep.tangent_mass):
-        vt = jnp.sum(rel_vel * tangent, axis=-1)
-        delta = -(mass * vt)[:, None] * tangent
-        friction = friction + delta
-        rel_vel = rel_vel + _local_velocity_change(model, prep, delta)
-    friction = clamp_to_disc(friction, prep.friction * normal_impulse)
-    return jnp.where(prep.active[:, None], friction, 0.0)
-
-
 def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, soft):
     """One iteration over all contacts; returns (vel, angvel, lam) with padded bodies.
 
@@ -384,13 +393,17 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
     if model.solver == "jacobi":
         # Each contact solves its normal and friction rows in turn on its own
         # split sub-bodies (a block), so splitting mass by contact count is enough.
-        rel_vel = _relative_velocity(model, prep, vel, angvel)
-        normal = _normal_update(prep, rel_vel, lam, separation, h, soft)
-        rel_vel = rel_vel + _local_velocity_change(model, prep, (normal - lam[:, 0])[:, None] * prep.normal)
-        friction = _friction_update(model, prep, rel_vel, lam, normal)
-        impulse = (normal - lam[:, 0])[:, None] * prep.normal + friction - lam[:, 1:]
-        vel, angvel = apply_impulses(model, prep, vel, angvel, impulse)
-        return vel, angvel, jnp.concatenate([normal[:, None], friction], axis=-1)
+        speeds = row_speeds(model, prep, vel, angvel)
+        old_friction = tangent_components(prep, lam[:, 1:])
+        normal = _normal_impulse(speeds[0], lam[:, 0], separation, prep.normal_mass, prep.smoothing,
+                                 prep.active, h, soft)
+        pushed = normal - lam[:, 0]
+        # The tangents' speeds on the sub-bodies after the normal impulse.
+        speeds = [speed + pushed * c for speed, c in zip(speeds[1:], prep.maps.normal_coupling)]
+        friction = _friction_impulses(model, prep, speeds, old_friction, normal)
+        vel, angvel = push_rows(model, prep, vel, angvel,
+                                [pushed] + [f - old for f, old in zip(friction, old_friction)])
+        return vel, angvel, jnp.concatenate([normal[:, None], world_friction(prep, friction)], axis=-1)
 
     def one_contact(row, bodies, old, separation, h_soft):
         h, soft = h_soft
@@ -418,7 +431,7 @@ def _take(array, index):
 
 def _row(prep: Prepared, index) -> Prepared:
     """Row ``index`` of every per-row field of ``prep`` (the per-body fields left out)."""
-    per_row = prep.replace(inv_mass=None, inv_inertia=None, split=None)
+    per_row = prep.replace(inv_mass=None)
     return jax.tree_util.tree_map(lambda field: _take(field, index), per_row)
 
 
@@ -466,14 +479,36 @@ def _row_friction(model, row, bodies, old_friction, normal):
         (bodies, friction): friction a (len(tangents),) array.
     """
     speeds = [_row_speed(row, 1 + k, bodies) for k in range(len(row.tangents))]
-    friction = [old_friction[0] - row.tangent_mass[0] * speeds[0]]
-    if model.dim == 3:
-        speed = speeds[1] + row.maps.coupling * (friction[0] - old_friction[0])
-        friction.append(old_friction[1] - row.tangent_mass[1] * speed)
-    friction = jnp.where(row.active, clamp_to_disc(jnp.stack(friction), row.friction * normal), 0.0)
+    friction = _friction_impulses(model, row, speeds, old_friction, normal)
     for k in range(len(row.tangents)):
         bodies = _row_push(row, 1 + k, bodies, friction[k] - old_friction[k])
-    return bodies, friction
+    return bodies, jnp.stack(friction)
+
+
+def _friction_impulses(model, prep, speeds, old_friction, normal) -> list:
+    """New accumulated friction along each tangent, clamped to the cone μ·normal.
+
+    Solved in tangent coordinates: the second tangent sees the first one's
+    update through ``prep.maps.coupling`` (a small block Gauss–Seidel), then the
+    pair is clamped to the disc. Works on one row (scalars, the sequential
+    solver) or on all rows at once ((C,) arrays, Jacobi) alike.
+
+    Args:
+        prep: :class:`Prepared` or one row of it (:func:`_row`).
+        speeds, old_friction: lists (one per tangent) of the tangent speeds
+            and the accumulated friction before this update.
+        normal: the rows' new normal impulses.
+
+    Returns:
+        A list (one per tangent) of friction impulses, 0 where inactive.
+    """
+    friction = [old_friction[0] - prep.tangent_mass[0] * speeds[0]]
+    if model.dim == 3:
+        speed = speeds[1] + prep.maps.coupling * (friction[0] - old_friction[0])
+        friction.append(old_friction[1] - prep.tangent_mass[1] * speed)
+    clamped = clamp_to_disc(jnp.stack(friction, axis=-1), prep.friction * normal)
+    clamped = jnp.where(prep.active[..., None], clamped, 0.0)
+    return [clamped[..., k] for k in range(len(friction))]
 
 
 def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), rows=None):
@@ -619,9 +654,8 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
         return jnp.where(bounce, jnp.maximum(old + delta, 0.0), old)
 
     if model.solver == "jacobi":
-        rel_vel = _relative_velocity(model, prep, vel, angvel)
-        normal = new_normal(jnp.sum(rel_vel * prep.normal, axis=-1), lam[:, 0], prep, threshold)
-        vel, angvel = apply_impulses(model, prep, vel, angvel, (normal - lam[:, 0])[:, None] * prep.normal)
+        normal = new_normal(row_speeds(model, prep, vel, angvel, count=1)[0], lam[:, 0], prep, threshold)
+        vel, angvel = push_rows(model, prep, vel, angvel, [normal - lam[:, 0]])
         return vel, angvel, lam.at[:, 0].set(normal)
 
     def one_contact(row, bodies, old, _, threshold):
