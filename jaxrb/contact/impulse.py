@@ -277,10 +277,9 @@ def current_separation(model: Model, prep: Prepared, state: State):
 
 # Every contact's rows at once (the Jacobi passes, the warm start, the
 # approach speeds) read and move the bodies through the RowMaps, as the
-# sequential rows do, not through the arms and the 3x3 inverse inertia: the
-# per-body 3x3 products and the arms' cross products made most of the Jacobi
-# gradient (the cotangents of the arms and inertias summed over every pass;
-# docs/performance.md, section 30).
+# sequential rows do, not through the arms and the 3x3 inverse inertias: the
+# arms' cotangent, summed in reverse over every pass, was half the Jacobi
+# gradient's time (docs/performance.md, section 30).
 
 def _directions(prep: Prepared) -> tuple:
     """The rows' unit directions: (normal, *tangents), each (C, dim)."""
