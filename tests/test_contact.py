@@ -465,3 +465,55 @@ def test_jacobi_solver_slides_to_a_stop_without_rocking():
     np.testing.assert_allclose(distance, 2.0 ** 2 / (2 * 0.5 * G), rtol=0.02)
     assert float(jnp.max(jnp.abs(traj.angvel[-30:]))) < 1e-4
     assert float(jnp.max(jnp.abs(traj.vel[-30:]))) < 1e-4
+
+
+def test_jacobi_row_couplings_match_the_split_sub_bodies():
+    """The Jacobi rows' couplings are what an impulse does on Tonge's split sub-bodies.
+
+    A Jacobi contact updates its normal, then its friction, on private copies
+    of its two bodies with k-fold inverse masses and inertias (k: contacts on
+    the body). The solver reads the normal update's effect on each tangent
+    speed, and the first tangent's on the second, from couplings computed once
+    a step (``RowMaps.normal_coupling``, ``RowMaps.coupling``). Here each is
+    checked against the impulse applied to the sub-bodies with the arms and
+    the 3x3 world inverse inertias, for a box resting on a plane and a
+    tilted box resting on it (rows with a static side and rows with two bodies).
+    """
+    from jaxrb.contact import common, impulse
+
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.5)
+    scene.add_body(rb.Box((0.2, 0.2, 0.1)), mass=2.0, pos=(0.0, 0.0, 0.1), friction=0.5)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.03, 0.02, 0.299), quat=(0.99, 0.05, 0.08, 0.1),
+                   friction=0.5)
+    model, params, state = scene.build(dt=1 / 60, contact="impulse", solver="jacobi", dtype=jnp.float64)
+    contacts = rb.detect_contacts(model, params, state)
+    prep = impulse.prepare(model, params, state, contacts)
+    active = np.asarray(contacts.active)
+    body_a, body_b = np.asarray(contacts.body_a), np.asarray(contacts.body_b)
+    assert np.any(active & (body_b == 2)) and np.any(active & (body_b == 1))  # both kinds of row
+
+    split = np.asarray(impulse._contact_counts(model, contacts))
+    inv_mass = np.append(1.0 / np.asarray(params.mass), 0.0)
+    inv_inertia = np.concatenate([np.asarray(common.world_inverse_inertia(model, params, state, padded=False)),
+                                  np.zeros((1, 3, 3))])
+    pos = np.concatenate([np.asarray(state.pos), np.zeros((1, 3))])
+    point, normal = np.asarray(contacts.point), np.asarray(contacts.normal)
+    tangents = [np.asarray(t) for t in prep.tangents]
+
+    def speed_change(row, direction):
+        """Change of the row's relative velocity (3,) per unit impulse along ``direction`` on the sub-bodies."""
+        change = np.zeros(3)
+        for body in (body_a[row], body_b[row]):
+            k, arm = max(split[body], 1.0), point[row] - pos[body]
+            spin = k * inv_inertia[body] @ np.cross(arm, direction)
+            change += k * inv_mass[body] * direction + np.cross(spin, arm)
+        return change
+
+    maps = prep.maps
+    for row in np.flatnonzero(active):
+        from_normal = speed_change(row, normal[row])
+        for tangent, coupling in zip(tangents, maps.normal_coupling):
+            np.testing.assert_allclose(float(coupling[row]), from_normal @ tangent[row], atol=1e-12)
+        np.testing.assert_allclose(float(maps.coupling[row]), speed_change(row, tangents[0][row]) @ tangents[1][row],
+                                   atol=1e-12)
