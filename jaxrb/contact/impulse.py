@@ -156,19 +156,18 @@ class RowMaps:
     normal_coupling: tuple = None
 
 
-def _row_maps(model, take, arm_a, arm_b, directions, inv_mass, inv_inertia, split) -> RowMaps:
+def _row_maps(model, take, arm_a, arm_b, directions, inv_mass, inv_inertia, split_a, split_b) -> RowMaps:
     """:class:`RowMaps` of rows with arms (C, dim) and unit ``directions``.
 
     ``take(array, side)`` reads the rows' bodies from the (n, ...) per-body
-    ``inv_mass``, world ``inv_inertia`` and mass-splitting factors ``split``
-    (:func:`jaxrb.collision.pairs.row_taker`).
+    ``inv_mass`` and world ``inv_inertia`` (:func:`jaxrb.collision.pairs.row_taker`);
+    ``split_a``, ``split_b`` (C,) are the mass-splitting factors of each row's bodies.
     """
     turn = lambda arm: tuple(moment(model, arm, d) for d in directions)
     spin = lambda row_inertia, turns: tuple(apply_inverse_inertia(model, row_inertia, t) for t in turns)
     turn_a, turn_b = turn(arm_a), turn(arm_b)
     spin_a, spin_b = spin(take(inv_inertia, 0), turn_a), spin(take(inv_inertia, 1), turn_b)
     inv_mass_a, inv_mass_b = take(inv_mass, 0), take(inv_mass, 1)
-    split_a, split_b = take(split, 0), take(split, 1)
     # Directions are orthogonal, so between two of them only the angular parts couple.
     couple = lambda k, j: (split_a * _dot(model, turn_a[k], spin_a[j])
                            + split_b * _dot(model, turn_b[k], spin_b[j]))
@@ -245,8 +244,9 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
              else jnp.ones(inv_mass.shape[0] + 1, inv_mass.dtype))
     normal = contacts.normal
     tangents = tangent_basis(normal) if model.dim == 3 else (jnp.stack([-normal[:, 1], normal[:, 0]], -1),)
-    maps = _row_maps(model, take, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia, split)
-    masses = [_effective_mass(model, maps, k, take(split, 0), take(split, 1)) for k in range(1 + len(tangents))]
+    split_a, split_b = take(split, 0), take(split, 1)
+    maps = _row_maps(model, take, arm_a, arm_b, (normal,) + tangents, inv_mass, inv_inertia, split_a, split_b)
+    masses = [_effective_mass(model, maps, k, split_a, split_b) for k in range(1 + len(tangents))]
     rotation_a, rotation_b = _row_rotations(model, state, take)
     normal_mass = masses[0]
     round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
@@ -335,13 +335,13 @@ def _scale(impulse, vector):
 
 
 def tangent_components(prep: Prepared, vectors) -> list:
-    """(C,) components of (C, dim) vectors along each row tangent."""
+    """(C,) components of (C, dim) vectors along each row tangent (or of one row's (dim,) vector)."""
     return [jnp.sum(vectors * tangent, axis=-1) for tangent in prep.tangents]
 
 
 def world_friction(prep: Prepared, friction) -> Array:
-    """(C, dim) friction vectors from their (C,) components along the tangents."""
-    return sum(f[:, None] * tangent for f, tangent in zip(friction, prep.tangents))
+    """(C, dim) friction vectors from their (C,) components along the tangents (or one row's (dim,))."""
+    return sum(f[..., None] * tangent for f, tangent in zip(friction, prep.tangents))
 
 
 def _normal_impulse(vn, old, separation, normal_mass, smoothing, active, h, soft):
@@ -409,10 +409,8 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
         normal = _normal_impulse(_row_speed(row, 0, bodies), old[0], separation,
                                  row.normal_mass, row.smoothing, row.active, h, soft)
         bodies = _row_push(row, 0, bodies, normal - old[0])
-        bodies, friction = _row_friction(model, row, bodies, [jnp.sum(old[1:] * t) for t in row.tangents],
-                                        normal)
-        world_friction = sum(f * t for f, t in zip(friction, row.tangents))
-        return bodies, jnp.concatenate([normal[None], world_friction])
+        bodies, friction = _row_friction(model, row, bodies, tangent_components(row, old[1:]), normal)
+        return bodies, jnp.concatenate([normal[None], world_friction(row, friction)])
 
     (vel, angvel), lam = _sweep_rows(prep, one_contact, (vel, angvel), lam, separation, (h, soft))
     return vel, angvel, lam
