@@ -109,12 +109,12 @@ def _impulse_substeps(model: Model):
     def run(state, params, force, torque, h):
         contacts = detect(model, params, state)
         prep = impulse.prepare(model, params, state, contacts)
-        lam = carried_impulses(state, contacts)  # warm start
+        # The warm start, along each row's directions (impulse.row_impulses).
+        lam = impulse.row_impulses(prep, carried_impulses(state, contacts))
         soft = impulse.soft_parameters(params, h)
 
         def warm_start(state, lam):
-            along = [lam[:, 0]] + impulse.tangent_components(prep, lam[:, 1:])
-            vel, angvel = impulse.push_rows(model, prep, pad(state.vel), pad(state.angvel), along)
+            vel, angvel = impulse.push_rows(model, prep, pad(state.vel), pad(state.angvel), list(lam))
             return _unpad(state, vel, angvel)
 
         def solve(state, lam, prep, soft, passes):
@@ -146,7 +146,7 @@ def _impulse_substeps(model: Model):
                     impact_rows)
                 state = _unpad(state, vel, angvel)
                 prep_now = prep_now.replace(active=prep_now.active & ~owned)
-                lam = jnp.where(owned[:, None], 0.0, lam)  # no warm start for a row the solver skips
+                lam = tuple(jnp.where(owned, 0.0, part) for part in lam)  # no warm start for a skipped row
             # Warm start: the substep begins with the last substep's (or step's) impulses.
             state = warm_start(state, lam)
             state, lam = solve(state, lam, prep_now, soft, model.iterations)
@@ -161,7 +161,8 @@ def _impulse_substeps(model: Model):
             return _unpad(state, vel, angvel), lam
 
         state, lam = jax.lax.fori_loop(0, model.substeps, substep, (state, lam))
-        return state.replace(contact_impulse=lam, contact_key=contacts.key, overflow=contacts.overflow)
+        return state.replace(contact_impulse=impulse.world_impulses(prep, lam), contact_key=contacts.key,
+                             overflow=contacts.overflow)
 
     return run
 

@@ -344,6 +344,24 @@ def world_friction(prep: Prepared, friction) -> Array:
     return sum(f[..., None] * tangent for f, tangent in zip(friction, prep.tangents))
 
 
+# Within a step the solvers carry each row's accumulated impulses along its
+# own directions, a tuple (normal, *tangent components) of (C,) arrays, and
+# convert from and to State.contact_impulse's world frame once a step. Sliced
+# out of and concatenated into one (C, 1 + dim) array in every pass, their
+# cotangent was built in reverse by a fusion of pads whose every column
+# evaluated every column's terms; batched, it was the passes' largest kernel
+# (docs/performance.md, section 31).
+
+def row_impulses(prep: Prepared, world) -> tuple:
+    """(C, 1 + dim) impulses (normal, world friction vector) as (normal, *tangent components), each (C,)."""
+    return (world[:, 0],) + tuple(tangent_components(prep, world[:, 1:]))
+
+
+def world_impulses(prep: Prepared, impulses) -> Array:
+    """:func:`row_impulses`' inverse: (C, 1 + dim), the normal impulse then the world friction vector."""
+    return jnp.concatenate([impulses[0][:, None], world_friction(prep, impulses[1:])], axis=-1)
+
+
 def _normal_impulse(vn, old, separation, normal_mass, smoothing, active, h, soft):
     """New accumulated normal impulse of rows with normal speed ``vn`` (any shape, all alike).
 
@@ -382,10 +400,11 @@ def smooth_clamp(impulse, width):
     return jnp.where(smooth, jnp.where(negative, tail, 0.5 * (impulse + root)), jnp.maximum(impulse, 0.0))
 
 
-def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, soft):
-    """One iteration over all contacts; returns (vel, angvel, lam) with padded bodies.
+def solve_pass(model: Model, prep: Prepared, vel, angvel, impulses, separation, h, soft):
+    """One iteration over all contacts; returns (vel, angvel, impulses) with padded bodies.
 
-    lam: (C, 1 + dim) accumulated impulses, normal first then the friction vector.
+    impulses: the rows' accumulated impulses (:func:`row_impulses`), a tuple
+    (normal, *tangent components) of (C,) arrays.
     The sequential solver takes each contact's normal then its friction.
     (Sweeping all normals before all friction made a 10-box stack creep more.)
     """
@@ -393,27 +412,27 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, lam, separation, h, so
         # Each contact solves its normal and friction rows in turn on its own
         # split sub-bodies (a block), so splitting mass by contact count is enough.
         speeds = row_speeds(model, prep, vel, angvel)
-        old_friction = tangent_components(prep, lam[:, 1:])
-        normal = _normal_impulse(speeds[0], lam[:, 0], separation, prep.normal_mass, prep.smoothing,
+        old_normal, old_friction = impulses[0], impulses[1:]
+        normal = _normal_impulse(speeds[0], old_normal, separation, prep.normal_mass, prep.smoothing,
                                  prep.active, h, soft)
-        pushed = normal - lam[:, 0]
+        pushed = normal - old_normal
         # The tangents' speeds on the sub-bodies after the normal impulse.
         speeds = [speed + pushed * c for speed, c in zip(speeds[1:], prep.maps.normal_coupling)]
         friction = _friction_impulses(model, prep, speeds, old_friction, normal)
         vel, angvel = push_rows(model, prep, vel, angvel,
                                 [pushed] + [f - old for f, old in zip(friction, old_friction)])
-        return vel, angvel, jnp.concatenate([normal[:, None], world_friction(prep, friction)], axis=-1)
+        return vel, angvel, (normal, *friction)
 
     def one_contact(row, bodies, old, separation, h_soft):
         h, soft = h_soft
         normal = _normal_impulse(_row_speed(row, 0, bodies), old[0], separation,
                                  row.normal_mass, row.smoothing, row.active, h, soft)
         bodies = _row_push(row, 0, bodies, normal - old[0])
-        bodies, friction = _row_friction(model, row, bodies, tangent_components(row, old[1:]), normal)
-        return bodies, jnp.concatenate([normal[None], world_friction(row, friction)])
+        bodies, friction = _row_friction(model, row, bodies, old[1:], normal)
+        return bodies, (normal, *friction)
 
-    (vel, angvel), lam = _sweep_rows(prep, one_contact, (vel, angvel), lam, separation, (h, soft))
-    return vel, angvel, lam
+    (vel, angvel), impulses = _sweep_rows(prep, one_contact, (vel, angvel), impulses, separation, (h, soft))
+    return vel, angvel, impulses
 
 
 # One sequential row at a time. The row index comes from an unbatched arange
@@ -470,16 +489,16 @@ def _row_friction(model, row, bodies, old_friction, normal):
 
     Args:
         row: one row of :class:`Prepared` (:func:`_row`); bodies: (v_a, ω_a, v_b, ω_b).
-        old_friction: list of the accumulated friction along each tangent (scalars).
+        old_friction: the accumulated friction along each tangent (a sequence of scalars).
 
     Returns:
-        (bodies, friction): friction a (len(tangents),) array.
+        (bodies, friction): friction a list of scalars, one per tangent.
     """
     speeds = [_row_speed(row, 1 + k, bodies) for k in range(len(row.tangents))]
     friction = _friction_impulses(model, row, speeds, old_friction, normal)
     for k in range(len(row.tangents)):
         bodies = _row_push(row, 1 + k, bodies, friction[k] - old_friction[k])
-    return bodies, jnp.stack(friction)
+    return bodies, friction
 
 
 def _friction_impulses(model, prep, speeds, old_friction, normal) -> list:
@@ -516,8 +535,8 @@ def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), row
             (vel, angvel) for the solver; ``bodies`` holds the row's two
             bodies' values (:func:`_read_bodies`), and ``update`` returns them
             changed.
-        lam: (R, k) per-row values handed in one row at a time and returned
-            updated (the accumulated impulses), or None.
+        lam: a pytree of (R,) per-row values handed in one row at a time and
+            returned updated (the accumulated impulses), or None.
         per_row: a pytree of (C, ...) arrays ``update`` reads one row of
             (``per_row_values``), or None.
         extra: any other arrays ``update`` reads (a pytree, passed whole).
@@ -638,8 +657,11 @@ def soft_parameters(params: Params, h):
     return omega / a1, a2 * a3, a3, params.max_push_velocity
 
 
-def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
-    """Give contacts that hit faster than ``threshold`` an outgoing speed of −e·v_approach."""
+def restitution_pass(model: Model, prep: Prepared, vel, angvel, impulses, threshold):
+    """Give contacts that hit faster than ``threshold`` an outgoing speed of −e·v_approach.
+
+    impulses: as in :func:`solve_pass`; returns (vel, angvel, impulses).
+    """
     def new_normal(vn, old, row, threshold):
         # With impulse_smoothing every closing contact pushes a little, so it
         # bounces up to a substep early (apex +2 mm on the bounce bench). Gating
@@ -651,13 +673,13 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, lam, threshold):
         return jnp.where(bounce, jnp.maximum(old + delta, 0.0), old)
 
     if model.solver == "jacobi":
-        normal = new_normal(row_speeds(model, prep, vel, angvel, count=1)[0], lam[:, 0], prep, threshold)
-        vel, angvel = push_rows(model, prep, vel, angvel, [normal - lam[:, 0]])
-        return vel, angvel, lam.at[:, 0].set(normal)
+        normal = new_normal(row_speeds(model, prep, vel, angvel, count=1)[0], impulses[0], prep, threshold)
+        vel, angvel = push_rows(model, prep, vel, angvel, [normal - impulses[0]])
+        return vel, angvel, (normal, *impulses[1:])
 
     def one_contact(row, bodies, old, _, threshold):
         normal = new_normal(_row_speed(row, 0, bodies), old[0], row, threshold)
-        return _row_push(row, 0, bodies, normal - old[0]), old.at[0].set(normal)
+        return _row_push(row, 0, bodies, normal - old[0]), (normal, *old[1:])
 
-    (vel, angvel), lam = _sweep_rows(prep, one_contact, (vel, angvel), lam, extra=threshold)
-    return vel, angvel, lam
+    (vel, angvel), impulses = _sweep_rows(prep, one_contact, (vel, angvel), impulses, extra=threshold)
+    return vel, angvel, impulses
