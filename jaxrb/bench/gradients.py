@@ -35,8 +35,8 @@ each step's input) and one with them.
 its gradient, both over the same T steps, called in turn. The ratio grad /
 forward is the "cheap gradient" figure (target ≤ 3×; checkpointing adds about one more
 forward pass). Timed at one world, and for scenes with a hand-written
-adjoint also at ``gradient_batch`` worlds (``vmap`` over the initial
-states, Params shared, the loss their mean).
+adjoint or in :data:`BATCHED_AUTODIFF` also at ``gradient_batch`` worlds
+(``vmap`` over the initial states, Params shared, the loss their mean).
 
 **Methods** (:data:`METHODS`): ``autodiff`` (``rb.rollout``'s reverse
 mode), ``checkpoint`` (the same with ``checkpoint=True``) and ``adjoint``
@@ -87,11 +87,17 @@ SCENES = {
 #: How reverse mode is taken: method -> rollout keywords (see the module docs).
 METHODS = {"autodiff": dict(), "checkpoint": dict(checkpoint=True), "adjoint": dict(adjoint=True)}
 
+#: Scenes without an adjoint whose autodiff gradient is timed at
+#: ``gradient_batch`` worlds too: the Jacobi solver, the impulse scheme meant
+#: for batches. The sequential solver's gradient at 1 024 worlds would take
+#: minutes of the report a call, so box_bounce is timed at one world only.
+BATCHED_AUTODIFF = ("box_bounce_jacobi",)
+
 #: What :func:`run` does by default: the full run of ``python -m jaxrb.bench``
 #: (its quick mode overrides some).
 #: ``gradient_methods``: keys of :data:`METHODS` to time and size (``adjoint``
 #: only where the scene has one). ``gradient_batch``: worlds of the batched time
-#: rows (None: none), autodiff and adjoint only.
+#: rows (None: none), autodiff and adjoint only (see :data:`BATCHED_AUTODIFF`).
 #: ``gradient_rounds``: timed rounds of forward and gradient at most, fewer
 #: (at least 3) once :data:`TIME_BUDGET_S` is spent. A one-world round takes
 #: milliseconds, and on a noisy host the median of 5 of them was no figure:
@@ -255,7 +261,8 @@ def run(settings: Optional[dict] = None, log=None) -> list:
 
     Returns:
         The ``"time"`` rows (one world, then ``gradient_batch`` worlds for
-        scenes with an adjoint: autodiff and adjoint), then the ``"memory"``
+        scenes with an adjoint, autodiff and adjoint, and for
+        :data:`BATCHED_AUTODIFF`, autodiff), then the ``"memory"``
         rows ordered by scene, T, method.
     """
     settings = {**DEFAULT_SETTINGS, **(settings or {})}
@@ -271,7 +278,7 @@ def run(settings: Optional[dict] = None, log=None) -> list:
         times += [row for row in timed if row["kind"] == "time"]
         memories += [row for row in timed if row["kind"] == "memory"]
         methods = [row["method"] for row in timed if row["kind"] == "time"]
-        if settings["gradient_batch"] and "adjoint" in methods:
+        if settings["gradient_batch"] and ("adjoint" in methods or name in BATCHED_AUTODIFF):
             times += gradient_time(name, time_steps, repeats=settings["gradient_rounds"], dtype=dtype,
                                    methods=[m for m in methods if m in ("autodiff", "adjoint")],
                                    batch=settings["gradient_batch"], log=log)
