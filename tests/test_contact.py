@@ -467,6 +467,29 @@ def test_jacobi_solver_slides_to_a_stop_without_rocking():
     assert float(jnp.max(jnp.abs(traj.vel[-30:]))) < 1e-4
 
 
+@pytest.mark.parametrize("solver", ["sequential", "jacobi"])
+def test_sliding_box_stores_world_frame_impulses(solver):
+    """State.contact_impulse holds each row's normal impulse and its world friction vector.
+
+    Within a step the solvers carry friction along each row's tangents; the
+    step converts it back for the next step's warm start. While the box
+    slides along +x, the rows' impulses of a substep (the solver's unit) sum
+    to m·g·h up and μ·m·g·h against the motion, closed form with h = dt/substeps.
+    """
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.5)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(2.0, 0.0, 0.0), friction=0.5)
+    model, params, state = scene.build(contact="impulse", solver=solver, **MODELS["impulse"])
+    traj = simulate(model, params, state, 0.25)  # it stops at 2/(0.5 g) = 0.41 s
+    h = float(params.dt) / model.substeps
+    sliding = np.asarray(traj.contact_impulse[5:])  # settled onto its four corners
+    normal = np.sum(sliding[..., 0], axis=-1)
+    friction = np.sum(sliding[..., 1:], axis=-2)
+    np.testing.assert_allclose(normal, G * h, rtol=0.02)
+    np.testing.assert_allclose(friction[:, 0], -0.5 * G * h, rtol=0.02)
+    np.testing.assert_allclose(friction[:, 1:], 0.0, atol=1e-3 * G * h)
+
+
 def test_jacobi_row_couplings_match_the_split_sub_bodies():
     """The Jacobi rows' couplings are what an impulse does on Tonge's split sub-bodies.
 
