@@ -334,16 +334,6 @@ def _scale(impulse, vector):
     return impulse[:, None] * vector if vector.ndim == 2 else impulse * vector
 
 
-def tangent_components(prep: Prepared, vectors) -> list:
-    """(C,) components of (C, dim) vectors along each row tangent (or of one row's (dim,) vector)."""
-    return [jnp.sum(vectors * tangent, axis=-1) for tangent in prep.tangents]
-
-
-def world_friction(prep: Prepared, friction) -> Array:
-    """(C, dim) friction vectors from their (C,) components along the tangents (or one row's (dim,))."""
-    return sum(f[..., None] * tangent for f, tangent in zip(friction, prep.tangents))
-
-
 # Within a step the solvers carry each row's accumulated impulses along its
 # own directions, a tuple (normal, *tangent components) of (C,) arrays, and
 # convert from and to State.contact_impulse's world frame once a step. Sliced
@@ -354,12 +344,14 @@ def world_friction(prep: Prepared, friction) -> Array:
 
 def row_impulses(prep: Prepared, world) -> tuple:
     """(C, 1 + dim) impulses (normal, world friction vector) as (normal, *tangent components), each (C,)."""
-    return (world[:, 0],) + tuple(tangent_components(prep, world[:, 1:]))
+    friction = world[:, 1:]
+    return (world[:, 0],) + tuple(jnp.sum(friction * tangent, axis=-1) for tangent in prep.tangents)
 
 
 def world_impulses(prep: Prepared, impulses) -> Array:
     """:func:`row_impulses`' inverse: (C, 1 + dim), the normal impulse then the world friction vector."""
-    return jnp.concatenate([impulses[0][:, None], world_friction(prep, impulses[1:])], axis=-1)
+    friction = sum(f[:, None] * tangent for f, tangent in zip(impulses[1:], prep.tangents))
+    return jnp.concatenate([impulses[0][:, None], friction], axis=-1)
 
 
 def _normal_impulse(vn, old, separation, normal_mass, smoothing, active, h, soft):
