@@ -19,6 +19,7 @@ table when the module finishes (``pytest -s`` shows it).
 """
 
 import math
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -315,6 +316,79 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     for key in keys:
         np.testing.assert_allclose(guarded[key], reference[key], rtol=1e-9, atol=1e-12, err_msg=key)
     assert any(float(jnp.max(jnp.abs(guarded[key]))) > 1e-3 for key in keys)
+
+
+def test_cotangent_once_is_the_identity_to_every_order():
+    """``impulse._cotangent_once`` changes no derivative: first, second (forward and reverse) or batched.
+
+    Its JVP routes the tangent through a conditional whose predicate comes
+    from a custom_vmap function, which reverse mode cannot differentiate; a
+    gradient of a gradient must still be taken (and equal the plain one's).
+    A loop, as in the solver, whose body reads a loop constant as the probe.
+    """
+    from jaxrb.contact import impulse
+
+    def loss(x, h, once):
+        probe = jnp.cos(x)
+        body = lambda _, carry: jnp.sin(once(2.0 * carry, h, probe)) * h
+        return jnp.sum(jax.lax.fori_loop(0, 4, body, x) ** 2)
+
+    plain = partial(loss, once=lambda values, h, probe: values)
+    marked = partial(loss, once=impulse._cotangent_once)
+    x, h, xs = jnp.array([0.5, 1.5, 2.5]), jnp.asarray(0.7), jnp.array([[0.5, 1.5, 2.5], [0.1, -0.4, 0.9]])
+    second = lambda f: jax.grad(lambda y: jnp.sum(jax.grad(f)(y, h)))
+    for transform, arguments in ((jax.grad, (x, h)), (partial(jax.grad, argnums=1), (x, h)), (jax.hessian, (x, h)),
+                                 (second, (x,)), (lambda f: jax.vmap(jax.grad(f), (0, None)), (xs, h))):
+        expected, actual = transform(plain)(*arguments), jax.jit(transform(marked))(*arguments)
+        np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-14)
+        assert float(jnp.max(jnp.abs(expected))) > 1e-3
+
+
+@pytest.mark.slow  # three gradient compiles, about 75 s on 2 cores
+def test_vmapped_jacobi_gradients_equal_each_worlds():
+    """Batched, the Jacobi pass computes its tangents' cotangents once; the gradients must not change.
+
+    ``impulse._cotangent_once`` puts a conditional (a fusion boundary) on the
+    pass's tangents under vmap only; at one world its predicate is a constant
+    and XLA removes it. A box lands sliding and spinning in three worlds that
+    differ in speed. Float64, the same arithmetic grouped otherwise: the
+    batched gradients (grad of the worlds' summed losses, and vmap of grad)
+    equal each world's own to 1e-9. The compiled programs must show the
+    boundary where it belongs: none in the one-world gradient (a box on a
+    plane has no other conditional), some in both batched ones. (No relax
+    pass: one pass loop fewer keeps the three compiles shorter.)
+    """
+    scene = rb.Scene(gravity=(0.0, 0.0, -G))
+    scene.add_plane(friction=0.5, restitution=0.3)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), pos=(0.0, 0.0, 0.15), vel=(1.0, 0.3, -0.5), angvel=(0.3, 0.0, 1.0),
+                   mass=1.0, friction=0.5, restitution=0.6)
+    model, params, state = scene.build(contact="impulse", solver="jacobi", **dict(IMPULSE, relax_iterations=0))
+    states = jax.vmap(lambda speed: state.replace(vel=state.vel.at[0, 0].set(speed)))(jnp.array([0.5, 1.0, 2.0]))
+    world = lambda index: jax.tree_util.tree_map(lambda array: array[index], states)
+    step = rb.make_step(model)
+    weights = np.random.default_rng(0).normal(size=(3, 3))
+
+    def loss(params, state):
+        final = rb.rollout(step, state, params, 12, every=12)
+        return sum(jnp.sum(w * v[-1, 0]) for w, v in zip(weights, (final.pos, final.vel, final.angvel)))
+
+    landed = jax.vmap(lambda s: rb.rollout(step, s, params, 12).contact_impulse[..., 0].max())(states)
+    assert bool(jnp.all(landed > 0.0))
+    one_world = rb.jit(jax.grad(loss)).lower(params, state).compile()
+    summed = rb.jit(jax.grad(lambda p, s: jnp.sum(jax.vmap(loss, (None, 0))(p, s)))).lower(params, states).compile()
+    each = rb.jit(jax.vmap(jax.grad(loss), (None, 0))).lower(params, states).compile()
+    conditionals = lambda compiled: compiled.as_text().count(" conditional(")
+    assert conditionals(one_world) == 0
+    assert conditionals(summed) > 0 and conditionals(each) > 0
+
+    worlds = [one_world(params, world(index)) for index in range(3)]
+    pairs = [(jax.tree_util.tree_map(lambda *grads: sum(grads), *worlds), summed(params, states))]
+    batched = each(params, states)
+    pairs += [(worlds[index], jax.tree_util.tree_map(lambda array: array[index], batched)) for index in range(3)]
+    for want, got in pairs:
+        for (path, expected), actual in zip(jax.tree_util.tree_leaves_with_path(want), jax.tree_util.tree_leaves(got)):
+            np.testing.assert_allclose(actual, expected, rtol=1e-9, atol=1e-12, err_msg=jax.tree_util.keystr(path))
+    assert float(jnp.max(jnp.abs(worlds[0].friction))) > 1e-3  # friction acts on the landing box
 
 
 # --------------------------------------------------------------------------- degenerate points

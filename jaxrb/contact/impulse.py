@@ -403,16 +403,18 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, impulses, separation, 
     if model.solver == "jacobi":
         # Each contact solves its normal and friction rows in turn on its own
         # split sub-bodies (a block), so splitting mass by contact count is enough.
-        speeds = row_speeds(model, prep, vel, angvel)
+        # Batched, each value below has its cotangent computed once (_cotangent_once).
+        once = lambda values: _cotangent_once(values, h, prep.normal_mass)
+        speeds = once(row_speeds(model, prep, vel, angvel))
         old_normal, old_friction = impulses[0], impulses[1:]
-        normal = _normal_impulse(speeds[0], old_normal, separation, prep.normal_mass, prep.smoothing,
-                                 prep.active, h, soft)
+        normal = once(_normal_impulse(speeds[0], old_normal, separation, prep.normal_mass, prep.smoothing,
+                                      prep.active, h, soft))
         pushed = normal - old_normal
         # The tangents' speeds on the sub-bodies after the normal impulse.
-        speeds = [speed + pushed * c for speed, c in zip(speeds[1:], prep.maps.normal_coupling)]
-        friction = _friction_impulses(model, prep, speeds, old_friction, normal)
+        speeds = once([speed + pushed * c for speed, c in zip(speeds[1:], prep.maps.normal_coupling)])
+        friction = once(_friction_impulses(model, prep, speeds, old_friction, normal))
         vel, angvel = push_rows(model, prep, vel, angvel,
-                                [pushed] + [f - old for f, old in zip(friction, old_friction)])
+                                once([pushed] + [f - old for f, old in zip(friction, old_friction)]))
         return vel, angvel, (normal, *friction)
 
     def one_contact(row, bodies, old, separation, h_soft):
@@ -425,6 +427,55 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, impulses, separation, 
 
     (vel, angvel), impulses = _sweep_rows(prep, one_contact, (vel, angvel), impulses, separation, (h, soft))
     return vel, angvel, impulses
+
+
+# Why a cotangent computed once: under vmap, XLA's CPU backend fuses the
+# cotangent of a value a Jacobi pass reads in several places (the rows'
+# speeds, the new normal impulses and friction, the impulse changes) into each
+# fusion that reads it, and 22 fusions of the passes' reverse each re-derived
+# the same transposes (36 operations of the friction clamp's, up to 31 of the
+# normal's). A conditional is a fusion boundary XLA keeps (as
+# :func:`jaxrb.components.materialize` uses in the forward); on those values'
+# tangents it makes their cotangents computed once, and the bouncing box's
+# gradient over 1 024 worlds went from 13.3–13.5× to 10.2–10.6× its forward.
+# At one world the same boundary cost more than it saved (1.05×), so it is put
+# in only under vmap: unbatched, its predicate is the constant True, and XLA
+# removes the conditional, leaving the one-world program as it was
+# (docs/performance.md, section 32).
+
+@jax.custom_batching.custom_vmap
+def _in_batch(h, probe):
+    """True, a constant XLA folds; under vmap ``h > 0``, a value it cannot fold (Scene.build validates dt)."""
+    return jnp.ones((), bool)
+
+
+@_in_batch.def_vmap
+def _in_batch_rule(axis_size, in_batched, h, probe):
+    return h > 0.0, in_batched[0]
+
+
+@jax.custom_jvp
+def _cotangent_once(values, h, probe):
+    """``values`` (a pytree of arrays) unchanged, with its cotangent computed once under vmap.
+
+    Args:
+        h: the substep, a scalar (> 0).
+        probe: an array that is batched with the worlds and constant over the
+            passes (``prep.normal_mass``). Derived from a value that changes
+            from pass to pass, the predicate would be a residual that reverse
+            mode stores per pass, and the conditional would stay at one world.
+    """
+    return values
+
+
+@_cotangent_once.defjvp
+def _cotangent_once_jvp(primals, tangents):
+    values, h, probe = primals
+    # No derivative reaches _in_batch (a custom_vmap function has none in
+    # reverse mode), so a gradient of this gradient can be taken.
+    batched = _in_batch(jax.lax.stop_gradient(h), jax.lax.stop_gradient(probe))
+    zeros = lambda tangent: jax.tree_util.tree_map(jnp.zeros_like, tangent)
+    return values, jax.lax.cond(batched, lambda tangent: tangent, zeros, tangents[0])
 
 
 # One sequential row at a time. The row index comes from an unbatched arange
