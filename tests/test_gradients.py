@@ -364,7 +364,7 @@ def test_vmapped_jacobi_gradients_equal_each_worlds():
                    mass=1.0, friction=0.5, restitution=0.6)
     model, params, state = scene.build(contact="impulse", solver="jacobi", **dict(IMPULSE, relax_iterations=0))
     states = jax.vmap(lambda speed: state.replace(vel=state.vel.at[0, 0].set(speed)))(jnp.array([0.5, 1.0, 2.0]))
-    world = lambda index: jax.tree_util.tree_map(lambda array: array[index], states)
+    world = lambda tree, index: jax.tree_util.tree_map(lambda array: array[index], tree)
     step = rb.make_step(model)
     weights = np.random.default_rng(0).normal(size=(3, 3))
 
@@ -381,10 +381,10 @@ def test_vmapped_jacobi_gradients_equal_each_worlds():
     assert conditionals(one_world) == 0
     assert conditionals(summed) > 0 and conditionals(each) > 0
 
-    worlds = [one_world(params, world(index)) for index in range(3)]
+    worlds = [one_world(params, world(states, index)) for index in range(3)]
     pairs = [(jax.tree_util.tree_map(lambda *grads: sum(grads), *worlds), summed(params, states))]
     batched = each(params, states)
-    pairs += [(worlds[index], jax.tree_util.tree_map(lambda array: array[index], batched)) for index in range(3)]
+    pairs += [(worlds[index], world(batched, index)) for index in range(3)]
     for want, got in pairs:
         for (path, expected), actual in zip(jax.tree_util.tree_leaves_with_path(want), jax.tree_util.tree_leaves(got)):
             np.testing.assert_allclose(actual, expected, rtol=1e-9, atol=1e-12, err_msg=jax.tree_util.keystr(path))
