@@ -96,11 +96,21 @@ def materialize(vector, params):
     select and the result is the same. The penalty box drop at batch 1 024
     ran 15 % faster with it (docs/performance.md, section 7), and the
     hand-written adjoint of :mod:`jaxrb.adjoint` about 35 % at batch 1.
+
+    Only on the CPU: elsewhere (``jax.lax.platform_dependent``, resolved when
+    the step is lowered, so the compiler never sees the choice) the parts
+    pass through unchanged, because a conditional on a GPU splits the step
+    into more kernels, and there launches, not recomputed arithmetic, set
+    the time of a small step (docs/performance.md, section 34).
     """
     present = [i for i, part in enumerate(vector) if not is_zero(part)]
-    stored = jax.lax.cond(params.dt > 0.0, lambda parts: parts,
-                          lambda parts: tuple(jnp.zeros_like(part) for part in parts),
-                          tuple(vector[i] for i in present))
+
+    def stored_by_conditional(parts):
+        return jax.lax.cond(params.dt > 0.0, lambda parts: parts,
+                            lambda parts: tuple(jnp.zeros_like(part) for part in parts), parts)
+
+    stored = jax.lax.platform_dependent(tuple(vector[i] for i in present),
+                                        cpu=stored_by_conditional, default=lambda parts: parts)
     return tuple(stored[present.index(i)] if i in present else 0.0 for i in range(len(vector)))
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
+from jaxrb import components as vec
 from jaxrb.compile import CPU_COMPILER_OPTIONS, compiler_options
 
 
@@ -107,3 +108,23 @@ def test_every_product_of_a_step_is_traced_at_full_precision():
     # ...and not by accident: outside the step, JAX's default stands.
     plain = jax.make_jaxpr(lambda a, b: a @ b)(jnp.eye(3), jnp.ones(3)).jaxpr
     assert _dot_precisions(plain) == [None]
+
+
+def test_values_are_stored_through_a_conditional_only_on_the_cpu():
+    # components.materialize: the conditional is the CPU's only kept fusion
+    # boundary; on a GPU it split the step into more kernels (performance.md,
+    # section 34), so lowered for CUDA the parts pass through, with no test of dt.
+    def stored(x, params):
+        doubled, zero, sine = vec.materialize((2.0 * x, 0.0, jnp.sin(x)), params)
+        assert zero == 0.0  # a structural zero stays one
+        return doubled + sine
+
+    scene = rb.Scene(dim=3)
+    scene.add_body(rb.Sphere(0.1), mass=1.0)
+    _, params, _ = scene.build(dt=0.01)
+    x = jnp.linspace(0.0, 1.0, 4)
+    traced = jax.jit(stored).trace(x, params)
+    compares = {platform: traced.lower(lowering_platforms=(platform,)).as_text().count("stablehlo.compare")
+                for platform in ("cpu", "cuda")}
+    assert compares == {"cpu": 1, "cuda": 0}
+    np.testing.assert_allclose(jax.jit(stored)(x, params), 2.0 * x + jnp.sin(x), rtol=1e-6)
