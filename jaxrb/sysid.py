@@ -663,10 +663,10 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
             adjoint (``adjoint=True``); None (default) does where the model
             has one (``jaxrb.adjoint.supports``: 3D semi-implicit models
             without damping, free bodies or penalty contact with spring
-            friction against planes), ``checkpoint`` is off and JAX's default
-            backend is the CPU (on a GPU autodiff was the faster at one
-            world). A fit only uses reverse mode, and the adjoint's gradients
-            equal autodiff's to rounding.
+            friction against planes) and ``checkpoint`` is off, on every
+            backend (on an H200 it took 0.6–0.7 of autodiff's time at one world:
+            docs/accelerator.md). A fit only uses reverse mode, and the
+            adjoint's gradients equal autodiff's to rounding.
 
     Returns:
         :class:`FitResult` with the best Params and the loss history.
@@ -702,10 +702,7 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
     unconstrained = to_unconstrained(params, masks, transforms)
     if adjoint is None:
         model = getattr(step, "model", None)
-        # On a GPU the adjoint's many small kernels made it the slower one: 1.4-2.7x autodiff's time
-        # at one world on an H100 (docs/accelerator.md).
-        adjoint = (model is not None and hand_written.supports(model) and not checkpoint
-                   and jax.default_backend() == "cpu")
+        adjoint = model is not None and hand_written.supports(model) and not checkpoint
     objective = make_objective(step, rollout_steps, every, weights=weights, loss=loss,
                                checkpoint=checkpoint, batched=batched, adjoint=adjoint)
 
