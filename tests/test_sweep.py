@@ -148,6 +148,47 @@ def test_batch_params_rejects_bad_input(world, fields, message):
         rb_sweep.batch_params(params, **fields)
 
 
+@pytest.mark.parametrize("batched", ["states", "params", "both"])
+def test_sweep_in_chunks_equals_one_vmap_and_free_fall(batched):
+    # 10 worlds in chunks of 4: two chunks and a remainder of 2 run apart.
+    scene = rb.Scene(dim=3)  # no plane: a cheap free-fall step
+    scene.add_body(rb.Sphere(RADIUS), mass=1.0, pos=(0.0, 0.0, DROP))
+    model, params, state = scene.build(dt=DT, substeps=SUBSTEPS)
+    step = rb.make_step(model)
+    up = np.linspace(-1.0, 1.0, 10)
+    states = rb_sweep.batch_state(state, vel=np.stack([np.zeros(10), np.zeros(10), up], axis=1))
+    dts = DT * np.linspace(0.5, 1.5, 10)
+    steps = rb_sweep.batch_params(params, dt=dts)
+    sides = dict(states=dict(states_batch=states, params=params), params=dict(params_batch=steps, state=state),
+                 both=dict(states_batch=states, params_batch=steps))[batched]
+    one_vmap = rb_sweep.sweep(step, **sides, chunk=None)
+    chunked = rb_sweep.sweep(step, **sides, chunk=4)
+    assert chunked.pos.shape == one_vmap.pos.shape == (10, 1, 3)
+    for name in ("pos", "vel", "quat", "angvel"):
+        np.testing.assert_allclose(getattr(chunked, name), getattr(one_vmap, name), rtol=1e-12, atol=0)
+    # n semi-implicit substeps of h = dt/n from upward speed v0, each world its own:
+    # z = z0 + n h v0 − g h² n(n+1)/2.
+    n = SUBSTEPS
+    h = (dts if batched != "states" else np.full(10, DT)) / n
+    v0 = up if batched != "params" else np.zeros(10)
+    np.testing.assert_allclose(chunked.pos[:, 0, 2], DROP + n * h * v0 - G * h * h * n * (n + 1) / 2, rtol=1e-12)
+
+
+@pytest.mark.parametrize("chunk", [0, -3, 2.5, "fast", True])
+def test_sweep_rejects_bad_chunk(world, chunk):
+    params, state, apex = world
+    batch = rb_sweep.batch_params(params, restitution=np.full(4, 0.5))
+    with pytest.raises(ValueError, match="'chunk'"):
+        rb_sweep.sweep(apex, batch, state=state, chunk=chunk)
+
+
+def test_sweep_rejects_chunk_with_shard(world):
+    params, state, apex = world
+    batch = rb_sweep.batch_params(params, restitution=np.full(4, 0.5))
+    with pytest.raises(ValueError, match="'shard'"):
+        rb_sweep.sweep(apex, batch, state=state, shard=True, chunk=2)
+
+
 def test_batch_state_rejects_missing_field(world):
     _, state, _ = world
     with pytest.raises(ValueError, match="'angle'"):
