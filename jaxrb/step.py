@@ -123,9 +123,15 @@ def _impulse_substeps(model: Model):
             separation = impulse.current_separation(model, prep, state)
             # A fori_loop, not a Python loop: the pass is compiled once, which
             # keeps compile time (and the reverse-mode program) small.
-            vel, angvel, lam = jax.lax.fori_loop(
-                0, passes, lambda _, carry: impulse.solve_pass(model, prep, *carry, separation, h, soft),
-                (pad(state.vel), pad(state.angvel), lam))
+            one_pass = lambda _, carry: impulse.solve_pass(model, prep, *carry, separation, h, soft)
+            if model.solver == "jacobi":
+                # Reverse mode keeps each Jacobi pass's input and recomputes the
+                # pass, not a stack per intermediate written in the forward loop
+                # and read back: the bouncing box's gradient took 0.84-0.99x the
+                # time (docs/performance.md, section 37). The sequential passes
+                # are rematerialised row by row instead (impulse._sweep_rows).
+                one_pass = jax.checkpoint(one_pass, prevent_cse=False)
+            vel, angvel, lam = jax.lax.fori_loop(0, passes, one_pass, (pad(state.vel), pad(state.angvel), lam))
             return _unpad(state, vel, angvel), lam
 
         def substep(_, carry):
