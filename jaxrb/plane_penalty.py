@@ -343,7 +343,7 @@ class PlanePenalty:
                                            vec.add(torque, contact_torque), h)
         # Stored once: the new quaternion's 4 parts and the new ω's 3 each
         # re-derived this ω (the contact torque's sums and R I⁻¹ Rᵀ) in their
-        # own fusion. The batched box drop runs 0.8-0.85x the time
+        # own fusion. The batched box drop runs 0.80-0.86x the time
         # (docs/performance.md, section 39).
         angvel = vec.materialize(angvel, params)
         # semi_implicit_position: x += h v; q by the orientation update; world L kept.
