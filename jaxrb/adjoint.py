@@ -13,7 +13,9 @@ adjoint of the 3D semi-implicit free-body step by hand:
   input State is the previous output;
 * the backward loop recomputes one step's intermediates from its input
   State, then applies the chain rule on components; the values many
-  cotangents share are computed once (``components.materialize``);
+  cotangents share are computed once (``components.materialize``), and
+  the recompute and the adjoint rotate vectors by stored rotation
+  matrices rather than by quaternions (:func:`_rotation`);
 * the parameters' cotangents are summed in the loop's carry (25 numbers
   a body), except applied loads', which leave the loop stacked (6 a body a
   step) because applied loads change from step to step.
@@ -76,25 +78,48 @@ def _conjugate(q):
     return (q[0], -q[1], -q[2], -q[3])
 
 
-def _rotate(q, out, g_out, keep: Callable):
-    """Cotangents (g_q, g_v) of out = ``quaternion.rotate_parts(q, v)``, from the value ``out``.
+def _rotation(q, keep: Callable):
+    """R(q/|q|) as 3 rows of 3 parts, stored once; what ``quaternion.rotate_parts(q, ·)`` applies.
+
+    The backward loop rotates by these stored entries (each rotated
+    component three products) instead of by the quaternion formula, whose
+    three components share t = 2 u × v: XLA's CPU fusion recomputed t (and,
+    in the penalty adjoint, R(q)'s entries) in every kernel that read a
+    rotated vector. With this and the factors :func:`_rotate` and
+    :func:`_normalize_adjoint` store, the free-body backward loop compiled
+    to 0.58× its arithmetic and the penalty drop's to 0.63×, and their
+    gradients took 0.86–0.93× the time (docs/performance.md, section 41).
+    """
+    w, x, y, z = q
+    scale = 2.0 / (w * w + x * x + y * y + z * z)
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+    entries = keep((1.0 - scale * (yy + zz), scale * (xy - wz), scale * (xz + wy),
+                    scale * (xy + wz), 1.0 - scale * (xx + zz), scale * (yz - wx),
+                    scale * (xz - wy), scale * (yz + wx), 1.0 - scale * (xx + yy)))
+    return entries[0:3], entries[3:6], entries[6:9]
+
+
+def _rotate(q, rotation, out, g_out, keep: Callable, inverse: bool = False):
+    """Cotangents (g_q, g_v) of out = R(q) v (or R(q)ᵀ v with ``inverse``), from the value ``out``.
 
     R(q) v depends on q only through q/|q|: a change δq turns ``out`` by
     δθ = 2 vec(δq ⊗ q̄)/|q|², so g·δout = δθ·(out × g) and
-    g_q = (2/|q|²) (0, out × g) ⊗ q; g_v = R(q)ᵀ g. ``keep`` stores both
-    once for all their users (``components.materialize``).
+    g_q = (2/|q|²) (0, out × g) ⊗ q; g_v = R(q)ᵀ g. For R(q)ᵀ v = R(q̄) v
+    the same holds with q̄ (and the conjugate taken back), g_v = R(q) g.
+    ``rotation`` is :func:`_rotation` of q. ``keep`` stores the shared
+    factor (0, out × g)'s scaled vector and both results once for all their
+    users (``components.materialize``).
     """
-    w, u = q[0], q[1:]
-    a = vec.along(2.0 / vec.dot(q, q), vec.cross(out, g_out))
+    turned = _conjugate(q) if inverse else q
+    w, u = turned[0], turned[1:]
+    a = keep(vec.along(2.0 / vec.dot(q, q), vec.cross(out, g_out)))
     g_q = (-vec.dot(a, u),) + vec.add(vec.along(w, a), vec.cross(a, u))
-    stored = keep(g_q + quat_ops.rotate_parts(_conjugate(q), g_out))
+    if inverse:
+        g_q, g_v = _conjugate(g_q), vec.matvec(rotation, g_out)
+    else:
+        g_v = vec.matvec_transposed(rotation, g_out)
+    stored = keep(g_q + g_v)
     return stored[:4], stored[4:]
-
-
-def _rotate_inverse(q, out, g_out, keep):
-    """Cotangents (g_q, g_v) of out = ``rotate_parts(conjugate(q), v)``."""
-    g_conjugate, g_v = _rotate(_conjugate(q), out, g_out, keep)
-    return _conjugate(g_conjugate), g_v
 
 
 def _multiply_adjoint(a, b, g_out):
@@ -103,14 +128,20 @@ def _multiply_adjoint(a, b, g_out):
             quat_ops.multiply_parts(_conjugate(a), g_out))
 
 
-def _normalize_adjoint(y, g_out):
-    """Cotangent of y in ``quaternion.normalize_parts(y)`` (zero where y = 0, like the fallback)."""
+def _normalize_adjoint(y, g_out, keep):
+    """Cotangent of y in ``quaternion.normalize_parts(y)`` (zero where y = 0, like the fallback).
+
+    Each of the four results reads every part of y/|y| and g·y/|y|, and
+    each is read by the eight parts of a quaternion product's adjoint:
+    both are stored once (``keep``), or XLA recomputes them in each.
+    """
     norm_sq = vec.dot(y, y)
     nonzero = norm_sq > 0.0
     inv_norm = 1.0 / jnp.sqrt(jnp.where(nonzero, norm_sq, 1.0))
     unit = vec.along(inv_norm, y)
-    radial = vec.dot(unit, g_out)
-    return tuple(jnp.where(nonzero, inv_norm * (g - radial * e), 0.0) for g, e in zip(g_out, unit))
+    stored = keep(unit + (vec.dot(unit, g_out), inv_norm))
+    unit, radial, inv_norm = stored[:4], stored[4], stored[5]
+    return keep(tuple(jnp.where(nonzero, inv_norm * (g - radial * e), 0.0) for g, e in zip(g_out, unit)))
 
 
 def _exp_adjoint(rotvec, theta_sq, cos_half, sinc_half, g_turn):
@@ -128,23 +159,23 @@ def _exp_adjoint(rotvec, theta_sq, cos_half, sinc_half, g_turn):
     return vec.add(vec.along(sinc_half, g_vector), vec.along(2.0 * g_theta_sq, rotvec))
 
 
-def _first_order_adjoint(q, angvel, h, g_out):
+def _first_order_adjoint(q, angvel, h, g_out, keep):
     """Cotangents (g_q, g_angvel, g_h) of ``quaternion.integrate_first_order_parts``."""
     omega = (jnp.zeros_like(angvel[0]),) + tuple(angvel)
     change = quat_ops.multiply_parts(omega, q)
     y = tuple(a + (0.5 * h) * b for a, b in zip(q, change))
-    g_y = _normalize_adjoint(y, g_out)
+    g_y = _normalize_adjoint(y, g_out, keep)
     g_omega, g_q_change = _multiply_adjoint(omega, q, vec.along(0.5 * h, g_y))
     return tuple(a + b for a, b in zip(g_y, g_q_change)), g_omega[1:], 0.5 * vec.dot(g_y, change)
 
 
-def _exp_map_adjoint(q, angvel, h, g_out):
+def _exp_map_adjoint(q, angvel, h, g_out, keep):
     """Cotangents (g_q, g_angvel, g_h) of ``quaternion.integrate_exp_map_parts``."""
     rotvec = vec.along(h, angvel)
     theta_sq = vec.dot(rotvec, rotvec)
     cos_half, sinc_half = quat_ops._half_angle_terms(theta_sq)
     turn = (cos_half,) + vec.along(sinc_half, rotvec)
-    g_y = _normalize_adjoint(quat_ops.multiply_parts(turn, q), g_out)
+    g_y = _normalize_adjoint(quat_ops.multiply_parts(turn, q), g_out, keep)
     g_turn, g_q = _multiply_adjoint(turn, q, g_y)
     g_rotvec = _exp_adjoint(rotvec, theta_sq, cos_half, sinc_half, g_turn)
     return g_q, vec.along(h, g_rotvec), vec.dot(g_rotvec, angvel)
@@ -155,33 +186,42 @@ _ORIENTATION_ADJOINTS = {"first_order": _first_order_adjoint, "exp_map": _exp_ma
 
 # ---------------------------------------------------------------- one substep
 
-def _substep_values(orientation, inertia, inv_inertia, pos, vel, quat, angvel, accel, torque, h):
+def _substep_values(orientation, inertia, inv_inertia, pos, vel, quat, angvel, accel, torque, h, keep,
+                    rotation=None):
     """One semi-implicit substep on components, and the intermediates its adjoint reads.
 
     The arithmetic of ``integrators.semi_implicit`` (velocity phase, then the
-    position phase, which keeps world L and re-expresses ω in the new frame).
+    position phase, which keeps world L and re-expresses ω in the new frame),
+    its rotations by stored matrices (:func:`_rotation`), so the recomputed
+    values equal the forward's to rounding, not bit for bit.
+
+    Args:
+        keep: stores a tuple of parts once for all its users.
+        rotation: R(quat) as 3 rows of 3 parts, if the caller has it stored
+            (else computed here).
 
     Returns:
         ((pos, vel, quat, angvel) after the substep, dict of intermediates).
     """
-    quat_conj = _conjugate(quat)
-    torque_body = quat_ops.rotate_parts(quat_conj, torque)
+    rotation = _rotation(quat, keep) if rotation is None else rotation
+    torque_body = vec.matvec_transposed(rotation, torque)
     spin_body = vec.matvec(inv_inertia, torque_body)
-    spin = quat_ops.rotate_parts(quat, spin_body)
+    spin = vec.matvec(rotation, spin_body)
     vel1 = vec.add(vel, vec.along(h, accel))
     angvel1 = vec.add(angvel, vec.along(h, spin))
     pos1 = vec.add(pos, vec.along(h, vel1))
-    body = quat_ops.rotate_parts(quat_conj, angvel1)
+    body = vec.matvec_transposed(rotation, angvel1)
     body_momentum = vec.matvec(inertia, body)
-    momentum = quat_ops.rotate_parts(quat, body_momentum)
+    momentum = vec.matvec(rotation, body_momentum)
     quat1 = quat_ops.ORIENTATION_UPDATES_PARTS[orientation](quat, angvel1, h)
-    momentum_new_frame = quat_ops.rotate_parts(_conjugate(quat1), momentum)
+    rotation1 = _rotation(quat1, keep)
+    momentum_new_frame = vec.matvec_transposed(rotation1, momentum)
     change = vec.sub(momentum_new_frame, body_momentum)
     body1 = vec.add(body, vec.matvec(inv_inertia, change))
-    angvel2 = quat_ops.rotate_parts(quat1, body1)
-    saved = dict(quat=quat, torque_body=torque_body, spin=spin, vel1=vel1, angvel1=angvel1, body=body,
-                 momentum=momentum, quat1=quat1, momentum_new_frame=momentum_new_frame, change=change,
-                 angvel2=angvel2)
+    angvel2 = vec.matvec(rotation1, body1)
+    saved = dict(quat=quat, rotation=rotation, torque_body=torque_body, spin=spin, vel1=vel1, angvel1=angvel1,
+                 body=body, momentum=momentum, quat1=quat1, rotation1=rotation1,
+                 momentum_new_frame=momentum_new_frame, change=change, angvel2=angvel2)
     return (pos1, vel1, quat1, angvel2), saved
 
 
@@ -208,22 +248,23 @@ def _substep_adjoint(orientation, inertia, inv_inertia, accel, h, saved, g_out, 
     """
     g_pos1, g_vel1, g_quat1, g_angvel2 = g_out
     s = saved
-    g_quat1_a, g_body1 = _rotate(s["quat1"], s["angvel2"], g_angvel2, keep)
+    quat, rotation, quat1, rotation1 = s["quat"], s["rotation"], s["quat1"], s["rotation1"]
+    g_quat1_a, g_body1 = _rotate(quat1, rotation1, s["angvel2"], g_angvel2, keep)
     g_change = keep(vec.matvec_transposed(inv_inertia, g_body1))
-    g_quat1_b, g_momentum = _rotate_inverse(s["quat1"], s["momentum_new_frame"], g_change, keep)
+    g_quat1_b, g_momentum = _rotate(quat1, rotation1, s["momentum_new_frame"], g_change, keep, inverse=True)
     g_quat1 = keep(tuple(a + b + c for a, b, c in zip(g_quat1, g_quat1_a, g_quat1_b)))
-    g_quat, g_angvel1, g_h = _ORIENTATION_ADJOINTS[orientation](s["quat"], s["angvel1"], h, g_quat1)
+    g_quat, g_angvel1, g_h = _ORIENTATION_ADJOINTS[orientation](quat, s["angvel1"], h, g_quat1, keep)
     g_angvel1 = keep(g_angvel1)
-    g_quat_m, g_body_momentum = _rotate(s["quat"], s["momentum"], g_momentum, keep)
+    g_quat_m, g_body_momentum = _rotate(quat, rotation, s["momentum"], g_momentum, keep)
     g_body_momentum = vec.sub(g_body_momentum, g_change)
     g_body = keep(vec.add(g_body1, vec.matvec_transposed(inertia, g_body_momentum)))
-    g_quat_b, g_angvel1_b = _rotate_inverse(s["quat"], s["body"], g_body, keep)
+    g_quat_b, g_angvel1_b = _rotate(quat, rotation, s["body"], g_body, keep, inverse=True)
     g_angvel1 = vec.add(g_angvel1, g_angvel1_b)
     g_vel1 = vec.add(g_vel1, vec.along(h, g_pos1))
     g_h = g_h + vec.dot(g_pos1, s["vel1"]) + vec.dot(g_angvel1, s["spin"]) + vec.dot(g_vel1, accel)
-    g_quat_s, g_spin_body = _rotate(s["quat"], s["spin"], vec.along(h, g_angvel1), keep)
-    g_quat_t, g_torque = _rotate_inverse(s["quat"], s["torque_body"],
-                                         vec.matvec_transposed(inv_inertia, g_spin_body), keep)
+    g_quat_s, g_spin_body = _rotate(quat, rotation, s["spin"], vec.along(h, g_angvel1), keep)
+    g_quat_t, g_torque = _rotate(quat, rotation, s["torque_body"], vec.matvec_transposed(inv_inertia, g_spin_body),
+                                 keep, inverse=True)
     g_quat = tuple(sum(parts) for parts in zip(g_quat, g_quat_m, g_quat_b, g_quat_s, g_quat_t))
     sums = dict(inv_inertia=tuple(a + b for a, b in zip(_outer(g_body1, s["change"]),
                                                         _outer(g_spin_body, s["torque_body"]))),
@@ -262,7 +303,7 @@ def _step_adjoint(model: Model, params: Params, state: State, applied: Optional[
     saved = []
     for _ in range(model.substeps):
         values, intermediates = _substep_values(model.orientation, inertia, inv_inertia, *values, accel,
-                                                torque, h)
+                                                torque, h, keep)
         saved.append(intermediates)
     g_state, sums, loads = g_after, None, None
     for intermediates in reversed(saved):

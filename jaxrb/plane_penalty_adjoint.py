@@ -227,7 +227,9 @@ def _contact_adjoint(fast, params, record, prepared, h, quat, force, torque, g_f
         fast: the model's ``PlanePenalty``.
         params: Params (penalty_stiffness, penalty_width, and dt for the
             stored cotangents' branch).
-        record: the intermediates ``_penalty`` recorded for this substep.
+        record: the intermediates ``_penalty`` recorded for this substep,
+            with the stored R(q) (``rotation``, 3 rows of 3 parts) the
+            caller added.
         prepared: ``fast.prepare(params)``.
         h: () substep length.
         quat: 4 parts of (n,), the substep's input orientation.
@@ -263,7 +265,7 @@ def _contact_adjoint(fast, params, record, prepared, h, quat, force, torque, g_f
         helds_in.append(g_held_in)
     # The predicted velocities: v + h F/m and ω + h R I⁻¹ Rᵀ τ.
     inv_mass, inv_inertia = prepared["inv_mass"], prepared["inv_inertia"]
-    rotation = quat_ops.rotation_matrix_parts(quat)
+    rotation = record["rotation"]
     g_predicted_vel, g_predicted_angvel = sums["predicted_vel"], sums["predicted_angvel"]
     body_torque = vec.matvec_transposed(rotation, torque)
     spin_body = vec.matvec(inv_inertia, body_torque)
@@ -313,15 +315,19 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     state, held = (carry.pos, carry.vel, carry.quat, carry.angvel), carry.friction
     saved = []
     for _ in range(model.substeps):
+        # R(q) stored once: the contact rows, their adjoint and the substep's all read it
+        # (docs/performance.md, section 41).
+        entries = keep(tuple(entry for row in quat_ops.rotation_matrix_parts(state[2]) for entry in row))
+        rotation = (entries[0:3], entries[3:6], entries[6:9])
         now = dataclasses.replace(carry, pos=state[0], vel=state[1], quat=state[2], angvel=state[3],
-                                  rotation=quat_ops.rotation_matrix_parts(state[2]), friction=held)
-        record = dict(angvel=state[3])
+                                  rotation=rotation, friction=held)
+        record = dict(angvel=state[3], rotation=rotation)
         contact_force, contact_torque, _, held = fast._penalty(now, params, prepared, force, torque, h, record)
         total_force = vec.add(force, contact_force)
         accel = vec.along(inv_mass, total_force)
         quat = state[2]
         state, intermediates = free_body._substep_values(orientation, inertia, inv_inertia, *state, accel,
-                                                         vec.add(torque, contact_torque), h)
+                                                         vec.add(torque, contact_torque), h, keep, rotation)
         saved.append((record, intermediates, accel, total_force, quat))
 
     g_pos, g_vel, g_quat, g_angvel, g_normals, g_helds = g_after
