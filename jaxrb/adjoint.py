@@ -93,9 +93,14 @@ def _rotation(q, keep: Callable):
     w, x, y, z = q
     scale = 2.0 / (w * w + x * x + y * y + z * z)
     xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
-    entries = keep((1.0 - scale * (yy + zz), scale * (xy - wz), scale * (xz + wy),
-                    scale * (xy + wz), 1.0 - scale * (xx + zz), scale * (yz - wx),
-                    scale * (xz - wy), scale * (yz + wx), 1.0 - scale * (xx + yy)))
+    return _stored_matrix(((1.0 - scale * (yy + zz), scale * (xy - wz), scale * (xz + wy)),
+                          (scale * (xy + wz), 1.0 - scale * (xx + zz), scale * (yz - wx)),
+                          (scale * (xz - wy), scale * (yz + wx), 1.0 - scale * (xx + yy))), keep)
+
+
+def _stored_matrix(rows, keep: Callable):
+    """A 3×3 matrix (3 rows of 3 parts) stored once by ``keep``, as rows again."""
+    entries = keep(tuple(entry for row in rows for entry in row))
     return entries[0:3], entries[3:6], entries[6:9]
 
 
@@ -106,9 +111,9 @@ def _rotate(q, rotation, out, g_out, keep: Callable, inverse: bool = False):
     δθ = 2 vec(δq ⊗ q̄)/|q|², so g·δout = δθ·(out × g) and
     g_q = (2/|q|²) (0, out × g) ⊗ q; g_v = R(q)ᵀ g. For R(q)ᵀ v = R(q̄) v
     the same holds with q̄ (and the conjugate taken back), g_v = R(q) g.
-    ``rotation`` is :func:`_rotation` of q. ``keep`` stores the shared
-    factor (0, out × g)'s scaled vector and both results once for all their
-    users (``components.materialize``).
+    ``rotation`` is :func:`_rotation` of q. ``keep`` stores
+    a = (2/|q|²) (out × g), which every part of g_q reads, and both results
+    once for all their users (``components.materialize``).
     """
     turned = _conjugate(q) if inverse else q
     w, u = turned[0], turned[1:]

@@ -317,8 +317,7 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     for _ in range(model.substeps):
         # R(q) stored once: the contact rows, their adjoint and the substep's all read it
         # (docs/performance.md, section 41).
-        entries = keep(tuple(entry for row in quat_ops.rotation_matrix_parts(state[2]) for entry in row))
-        rotation = (entries[0:3], entries[3:6], entries[6:9])
+        rotation = free_body._stored_matrix(quat_ops.rotation_matrix_parts(state[2]), keep)
         now = dataclasses.replace(carry, pos=state[0], vel=state[1], quat=state[2], angvel=state[3],
                                   rotation=rotation, friction=held)
         record = dict(angvel=state[3], rotation=rotation)
