@@ -88,7 +88,7 @@ def _rotation(q, keep: Callable):
     rotated vector. With this and the factors :func:`_rotate` and
     :func:`_normalize_adjoint` store, the free-body backward loop compiled
     to 0.58× its arithmetic and the penalty drop's to 0.63×, and their
-    gradients took 0.86–0.93× the time (docs/performance.md, section 41).
+    gradients took 0.83–0.93× the time (docs/performance.md, section 41).
     """
     w, x, y, z = q
     scale = 2.0 / (w * w + x * x + y * y + z * z)
