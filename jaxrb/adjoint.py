@@ -90,12 +90,7 @@ def _rotation(q, keep: Callable):
     to 0.58× its arithmetic and the penalty drop's to 0.63×, and their
     gradients took 0.83–0.93× the time (docs/performance.md, section 41).
     """
-    w, x, y, z = q
-    scale = 2.0 / (w * w + x * x + y * y + z * z)
-    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
-    return _stored_matrix(((1.0 - scale * (yy + zz), scale * (xy - wz), scale * (xz + wy)),
-                          (scale * (xy + wz), 1.0 - scale * (xx + zz), scale * (yz - wx)),
-                          (scale * (xz - wy), scale * (yz + wx), 1.0 - scale * (xx + yy))), keep)
+    return _stored_matrix(quat_ops.rotation_matrix_parts(q, 2.0 / vec.dot(q, q)), keep)
 
 
 def _stored_matrix(rows, keep: Callable):

@@ -136,11 +136,14 @@ def to_rotation_matrix(q):
     return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def rotation_matrix_parts(q):
+def rotation_matrix_parts(q, scale=2.0):
     """:func:`to_rotation_matrix` on component tuples.
 
     Args:
-        q: 4-tuple (w, x, y, z) of arrays, a unit quaternion.
+        q: 4-tuple (w, x, y, z) of arrays, a unit quaternion (any non-zero
+            one with ``scale`` = 2/|q|²).
+        scale: 2 for a unit quaternion; 2/|q|² gives R(q/|q|), what
+            :func:`rotate_parts` applies to any non-zero q.
 
     Returns:
         3 rows of 3 arrays: ``R[i][j]`` is entry (i, j) of R(q).
@@ -149,9 +152,9 @@ def rotation_matrix_parts(q):
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
     wx, wy, wz = w * x, w * y, w * z
-    return ((1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)),
-            (2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)),
-            (2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)))
+    return ((1.0 - scale * (yy + zz), scale * (xy - wz), scale * (xz + wy)),
+            (scale * (xy + wz), 1.0 - scale * (xx + zz), scale * (yz - wx)),
+            (scale * (xz - wy), scale * (yz + wx), 1.0 - scale * (xx + yy)))
 
 
 def _half_angle_terms(theta_sq):
