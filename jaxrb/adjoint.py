@@ -90,13 +90,7 @@ def _rotation(q, keep: Callable):
     to 0.58× its arithmetic and the penalty drop's to 0.63×, and their
     gradients took 0.83–0.93× the time (docs/performance.md, section 41).
     """
-    return _stored_matrix(quat_ops.rotation_matrix_parts(q, 2.0 / vec.dot(q, q)), keep)
-
-
-def _stored_matrix(rows, keep: Callable):
-    """A 3×3 matrix (3 rows of 3 parts) stored once by ``keep``, as rows again."""
-    entries = keep(tuple(entry for row in rows for entry in row))
-    return entries[0:3], entries[3:6], entries[6:9]
+    return vec.stored_matrix(quat_ops.rotation_matrix_parts(q, 2.0 / vec.dot(q, q)), keep)
 
 
 def _rotate(q, rotation, out, g_out, keep: Callable, inverse: bool = False):

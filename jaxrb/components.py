@@ -114,6 +114,12 @@ def materialize(vector, params):
     return tuple(stored[present.index(i)] if i in present else 0.0 for i in range(len(vector)))
 
 
+def stored_matrix(rows, keep):
+    """A 3×3 matrix (3 rows of 3 parts) stored once by ``keep`` (:func:`materialize` with its Params), as rows again."""
+    entries = keep(tuple(entry for row in rows for entry in row))
+    return entries[0:3], entries[3:6], entries[6:9]
+
+
 def matrix_parts(matrices):
     """(n, 3, 3) -> rows of (n,) entries."""
     return tuple(unstack(row) for row in unstack(matrices, -2))

@@ -17,10 +17,12 @@ per element, unvectorised, recomputing the chain behind it for each
 (docs/performance.md, sections 2 and 3); carrying components through the
 scan removes every such join: the penalty box drop at batch 1 024 runs
 2.4× faster, its batch-1 gradient 1.6× faster, only a batch-1 forward
-rollout 1.7× slower (section 7). The step also carries each body's rotation
-matrix, computed once at the end of the step before: XLA duplicates a
+rollout 1.7× slower (section 7). Each substep computes each body's rotation
+matrix once and stores it (``components.materialize``): XLA duplicates a
 producer into every consumer, and the 8 contact rows of a box each re-derived
-it from the quaternion.
+it from the quaternion. It is not carried from the substep before: as a
+loop operand, each of its nine entries was computed before the loop in a
+kernel of its own, which the compile paid for (section 42).
 
 Agreement with the generic step is tested (``tests/test_plane_penalty.py``):
 the same trajectories to float rounding, and the same gradients.
@@ -157,6 +159,11 @@ def _to_bodies(values, bodies, num_bodies):
     return jax.ops.segment_sum(per_pair, bodies, num_bodies)
 
 
+def rotation_stored(quat, params):
+    """R(quat) (3 rows of 3 parts of (n,)), its nine entries computed once for all their readers."""
+    return vec.stored_matrix(quat_ops.rotation_matrix_parts(quat), lambda parts: vec.materialize(parts, params))
+
+
 def _stored(params, *vectors):
     """``vectors`` (tuples of (P, K) parts) computed once and stored, through one :func:`jaxrb.components.materialize`.
 
@@ -178,12 +185,11 @@ def _stored(params, *vectors):
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass
 class Carry:
-    """What the scan carries: the State on components, plus each body's rotation.
+    """What the scan carries: the State on components.
 
     Attributes:
         pos, vel, angvel: 3-tuples of (n,) world-frame components.
         quat: 4-tuple of (n,) quaternion components (w, x, y, z).
-        rotation: rows of (n,) entries of R(quat), computed once per step.
         normal_force: per group, (P, K) last substep's normal force.
         friction: per group, 3 parts of the (P, K) elastic friction force
             (world frame; 0.0 for a part an axis-aligned plane makes zero).
@@ -194,7 +200,6 @@ class Carry:
     vel: tuple
     angvel: tuple
     quat: tuple
-    rotation: tuple
     normal_force: tuple
     friction: tuple
     time: jax.Array
@@ -203,10 +208,13 @@ class Carry:
 class PlanePenalty:
     """The component form of ``make_step(model)``'s step, and the State ↔ Carry conversions.
 
-    ``rollout`` calls :meth:`prepare` once, outside its scan, then
-    :meth:`step` every step: what depends only on Params (mixed friction,
-    dampers, body-frame contact points, inverse inertia) is not recomputed
-    per step.
+    ``rollout`` scans :meth:`step`, which calls :meth:`prepare` (what
+    depends only on Params: mixed friction, dampers, body-frame contact
+    points, inverse inertia) inside the loop. Those are a few operations a
+    body, on Params that ``vmap`` over worlds leaves unbatched; computed
+    before the loop instead, each of the 36 values of a box's became a
+    kernel of its own there, and the batched box drop compiled in about
+    1.25× the time, running no faster (docs/performance.md, section 42).
 
     Args:
         model: a Model for which :func:`supports` holds.
@@ -240,7 +248,7 @@ class PlanePenalty:
             friction.append(group.normal.tangential(vector, group.normal.vector(force.dtype)))
         return Carry(
             pos=unstack(state.pos), vel=unstack(state.vel), angvel=unstack(state.angvel),
-            quat=unstack(state.quat), rotation=quat_ops.rotation_matrix_parts(unstack(state.quat)),
+            quat=unstack(state.quat),
             normal_force=tuple(rows(force[:, 0], group) for group in self.groups),
             friction=tuple(friction), time=state.time)
 
@@ -328,18 +336,19 @@ class PlanePenalty:
             return value
         return vec.along(1.0 / (1.0 + h * rate), value)
 
-    def _velocity_phase(self, params, prepared, carry, force, torque, h):
-        """semi_implicit_velocity: v += h F/m, ω += h R I⁻¹ Rᵀ τ, damped."""
+    def _velocity_phase(self, params, prepared, carry, rotation, force, torque, h):
+        """semi_implicit_velocity: v += h F/m, ω += h R I⁻¹ Rᵀ τ, damped (``rotation`` R(carry.quat))."""
         vel = vec.add(carry.vel, vec.along(h * prepared["inv_mass"], force))
-        body_torque = vec.matvec_transposed(carry.rotation, torque)
-        spin = vec.matvec(carry.rotation, vec.matvec(prepared["inv_inertia"], body_torque))
+        body_torque = vec.matvec_transposed(rotation, torque)
+        spin = vec.matvec(rotation, vec.matvec(prepared["inv_inertia"], body_torque))
         angvel = vec.add(carry.angvel, vec.along(h, spin))
         return (self._damp(vel, params.linear_damping, h), self._damp(angvel, params.angular_damping, h))
 
     def _substep(self, carry, params, prepared, force, torque, h):
+        start = rotation_stored(carry.quat, params)
         contact_force, contact_torque, normal_forces, frictions = self._penalty(
-            carry, params, prepared, force, torque, h)
-        vel, angvel = self._velocity_phase(params, prepared, carry, vec.add(force, contact_force),
+            carry, start, params, prepared, force, torque, h)
+        vel, angvel = self._velocity_phase(params, prepared, carry, start, vec.add(force, contact_force),
                                            vec.add(torque, contact_torque), h)
         # Stored once: the new quaternion's 4 parts and the new ω's 3 each
         # re-derived this ω (the contact torque's sums and R I⁻¹ Rᵀ) in their
@@ -348,18 +357,20 @@ class PlanePenalty:
         angvel = vec.materialize(angvel, params)
         # semi_implicit_position: x += h v; q by the orientation update; world L kept.
         pos = vec.add(carry.pos, vec.along(h, vel))
-        angvel_body = vec.matvec_transposed(carry.rotation, angvel)
-        momentum = vec.matvec(carry.rotation, vec.matvec(prepared["inertia"], angvel_body))
+        angvel_body = vec.matvec_transposed(start, angvel)
+        momentum = vec.matvec(start, vec.matvec(prepared["inertia"], angvel_body))
         quat = quat_ops.ORIENTATION_UPDATES_PARTS[self.model.orientation](carry.quat, angvel, h)
         rotation = quat_ops.rotation_matrix_parts(quat)
         # ω_b + I⁻¹(Rᵀ L − I ω_b) as integrators.angvel_from_momentum, with the new rotation.
         change = vec.sub(vec.matvec_transposed(rotation, momentum), vec.matvec(prepared["inertia"], angvel_body))
         angvel = vec.matvec(rotation, vec.add(angvel_body, vec.matvec(prepared["inv_inertia"], change)))
-        return Carry(pos=pos, vel=vel, angvel=angvel, quat=quat, rotation=rotation,
+        return Carry(pos=pos, vel=vel, angvel=angvel, quat=quat,
                      normal_force=normal_forces, friction=frictions, time=carry.time)
 
-    def _penalty(self, carry, params, prepared, force, torque, h, record: Optional[dict] = None):
+    def _penalty(self, carry, rotation, params, prepared, force, torque, h, record: Optional[dict] = None):
         """penalty_wrench on every group: body force and torque sums, and each row's carried forces.
+
+        ``rotation`` is R(carry.quat), 3 rows of 3 parts of (n,).
 
         ``record``, when given, receives the intermediates the hand-written
         adjoint reads (:mod:`jaxrb.plane_penalty_adjoint`): the predicted
@@ -374,11 +385,12 @@ class PlanePenalty:
         dtype = carry.pos[0].dtype
         contact_force, contact_torque = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
         normal_forces, frictions = [], []
-        predicted_vel, predicted_angvel = self._velocity_phase(params, prepared, carry, force, torque, h)
+        predicted_vel, predicted_angvel = self._velocity_phase(params, prepared, carry, rotation, force, torque, h)
         if record is not None:
             record.update(predicted_angvel=predicted_angvel, groups=[])
         stiffness = params.penalty_stiffness
-        rows = [self._contact_rows(params, carry, group, data) for group, data in zip(self.groups, prepared["groups"])]
+        rows = [self._contact_rows(params, carry, rotation, group, data)
+                for group, data in zip(self.groups, prepared["groups"])]
         # Contacts touching each body, over all its groups (the damper cap shares them).
         sharing_body = jnp.maximum(sum(_to_bodies(row["active"].astype(dtype), group.bodies, num)
                                        for row, group in zip(rows, self.groups)), 1.0)
@@ -430,10 +442,10 @@ class PlanePenalty:
             frictions.append(held)
         return contact_force, contact_torque, tuple(normal_forces), tuple(frictions)
 
-    def _contact_rows(self, params, carry, group, data):
+    def _contact_rows(self, params, carry, rotation, group, data):
         """The plane kernel and detect's speculative margin for one group: every row (P, K)."""
         take = lambda values: _rows(values, group.bodies)
-        rotation = tuple(tuple(map(take, row)) for row in carry.rotation)
+        rotation = tuple(tuple(map(take, row)) for row in rotation)
         arm = vec.matvec(rotation, data["local"])  # point minus centre of mass, world frame
         normal = group.normal.vector(carry.pos[0].dtype)
         height = vec.dot(vec.add(tuple(map(take, carry.pos)), arm), normal) - data["offset"]

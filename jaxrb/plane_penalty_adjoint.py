@@ -293,7 +293,7 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
         fast: the model's ``PlanePenalty``.
         params: Params (the step reads dt, penalty_stiffness, penalty_width and contact_margin).
         prepared: ``fast.prepare(params)``.
-        carry: the step's input Carry (its rotation is not read).
+        carry: the step's input Carry.
         force, torque: 3 parts of (n,) external force and torque.
         g_after: (g_pos, g_vel, g_quat, g_angvel, g_normals, g_helds)
             cotangents of the step's output (3 or 4 parts of (n,); per group
@@ -317,11 +317,11 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     for _ in range(model.substeps):
         # R(q) stored once: the contact rows, their adjoint and the substep's all read it
         # (docs/performance.md, section 41).
-        rotation = free_body._stored_matrix(quat_ops.rotation_matrix_parts(state[2]), keep)
-        now = dataclasses.replace(carry, pos=state[0], vel=state[1], quat=state[2], angvel=state[3],
-                                  rotation=rotation, friction=held)
+        rotation = vec.stored_matrix(quat_ops.rotation_matrix_parts(state[2]), keep)
+        now = dataclasses.replace(carry, pos=state[0], vel=state[1], quat=state[2], angvel=state[3], friction=held)
         record = dict(angvel=state[3], rotation=rotation)
-        contact_force, contact_torque, _, held = fast._penalty(now, params, prepared, force, torque, h, record)
+        contact_force, contact_torque, _, held = fast._penalty(now, rotation, params, prepared, force, torque, h,
+                                                               record)
         total_force = vec.add(force, contact_force)
         accel = vec.along(inv_mass, total_force)
         quat = state[2]
@@ -360,10 +360,6 @@ def _rows_of(entries):
     return tuple(tuple(entries[3 * i:3 * i + 3]) for i in range(3))
 
 
-def _without_rotation(carry: Carry) -> Carry:
-    return dataclasses.replace(carry, rotation=None)
-
-
 def _prepared_cotangent(prepared, body, rows):
     """``prepare``'s output's cotangent from the backward loop's sums (rows summed over each pair's points)."""
     pair_sum = lambda values: jnp.sum(values, axis=-1, keepdims=True)
@@ -397,16 +393,14 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
     def forward(params, prepared, carry, applied, keep_inputs):
         # rb.rollout's plane-penalty loop.
         def one(current, applied_now):
-            return fast.step(current, params, applied_now, prepared), (
-                _without_rotation(current) if keep_inputs else None)
+            return fast.step(current, params, applied_now, prepared), (current if keep_inputs else None)
 
         def chunk(current, applied_chunk):
             current, inputs = jax.lax.scan(one, current, applied_chunk, length=every)
-            return current, (_without_rotation(current), inputs)
+            return current, (current, inputs)
 
         chunks = (jax.tree_util.tree_map(lambda a: a.reshape((num_saved, every) + a.shape[1:]), applied)
                   if per_step else None)
-        carry = dataclasses.replace(carry, rotation=quat_ops.rotation_matrix_parts(carry.quat))
         _, (carries, inputs) = jax.lax.scan(chunk, carry, chunks, length=num_saved)
         return carries, inputs
 
@@ -468,13 +462,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
         if model.penalty_smooth:
             g_params = g_params.replace(
                 penalty_width=g_params.penalty_width + sum(jnp.sum(group["width"]) for group in rows))
-        g_carry = Carry(pos=g_first[0], vel=g_first[1], quat=g_first[2], angvel=g_first[3], rotation=None,
+        g_carry = Carry(pos=g_first[0], vel=g_first[1], quat=g_first[2], angvel=g_first[3],
                         normal_force=g_first[4], friction=g_first[5], time=jnp.sum(g_steps.time))
         return g_params, _prepared_cotangent(prepared, body, rows), g_carry, g_applied
 
     run.defvjp(run_forward, full_precision(run_backward))
     prepared = fast.prepare(params)
-    # The Carry's rotation is R(quat), a function of quat: run() takes and
-    # returns Carries without it, so its cotangent is carried by quat's.
-    carries = run(params, prepared, _without_rotation(fast.to_carry(state, params)), applied)
+    carries = run(params, prepared, fast.to_carry(state, params), applied)
     return jax.vmap(lambda carry: fast.from_carry(carry, state, params))(carries)

@@ -266,8 +266,11 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
     if fast is None:
         carried, advance_one, saved = state, lambda c, a: step(c, params, a), lambda c: c
     else:
-        carried, prepared = fast.to_carry(state, params), fast.prepare(params)
-        advance_one = lambda c, a: fast.step(c, params, a, prepared)
+        # The step computes prepare(params) itself, inside the loop: before it,
+        # each of prepare's values became a kernel that the compile paid for
+        # (jaxrb.plane_penalty.PlanePenalty; docs/performance.md, section 42).
+        carried = fast.to_carry(state, params)
+        advance_one = lambda c, a: fast.step(c, params, a)
         saved = lambda c: fast.from_carry(c, state, params)
     # Reverse mode recomputes each step from its carried state instead of
     # storing the step's intermediates (scalars per body component, a hundred
