@@ -211,10 +211,11 @@ class PlanePenalty:
     ``rollout`` scans :meth:`step`, which calls :meth:`prepare` (what
     depends only on Params: mixed friction, dampers, body-frame contact
     points, inverse inertia) inside the loop. Those are a few operations a
-    body, on Params that ``vmap`` over worlds leaves unbatched; computed
-    before the loop instead, each of the 36 values of a box's became a
-    kernel of its own there, and the batched box drop compiled in about
-    1.25× the time, running no faster (docs/performance.md, section 42).
+    body, on Params that ``vmap`` over worlds leaves unbatched. Computed
+    before the loop, they (with the rotation the Carry then held) were at
+    least 36 of the batched box drop's 77 kernels outside it, each compiled
+    apart: the drop compiled in 1.15–1.3× the time and ran no faster
+    (docs/performance.md, section 42).
 
     Args:
         model: a Model for which :func:`supports` holds.
