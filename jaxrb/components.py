@@ -114,10 +114,14 @@ def materialize(vector, params):
     return tuple(stored[present.index(i)] if i in present else 0.0 for i in range(len(vector)))
 
 
+def matrix_rows(entries):
+    """A 3×3 matrix's 9 entries row by row -> 3 rows of 3, as :func:`matrix_parts` lays a matrix out."""
+    return tuple(tuple(entries[3 * i:3 * i + 3]) for i in range(3))
+
+
 def stored_matrix(rows, keep):
     """A 3×3 matrix (3 rows of 3 parts) stored once by ``keep`` (:func:`materialize` with its Params), as rows again."""
-    entries = keep(tuple(entry for row in rows for entry in row))
-    return entries[0:3], entries[3:6], entries[6:9]
+    return matrix_rows(keep(tuple(entry for row in rows for entry in row)))
 
 
 def matrix_parts(matrices):

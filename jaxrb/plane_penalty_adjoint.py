@@ -54,7 +54,8 @@ from jaxrb import adjoint as free_body, components as vec, quaternion as quat_op
 from jaxrb.compile import full_precision
 from jaxrb.dynamics import net_wrench
 from jaxrb.math import safe_div, unstack
-from jaxrb.plane_penalty import Carry, _rows, _stored, _to_bodies, supports as plane_penalty_supports
+from jaxrb.plane_penalty import (Carry, _rows, _stored, _to_bodies, rotation_stored,
+                                  supports as plane_penalty_supports)
 from jaxrb.types import Model, Params, State, Wrench
 
 
@@ -280,7 +281,7 @@ def _contact_adjoint(fast, params, record, prepared, h, quat, force, torque, g_f
     g_rotation = _add_parts(_add_parts(sums["rotation"], _outer(g_spin, spin_body)), _outer(torque, g_body_torque))
     # R(q)'s polynomial, as the forward computes it (a few products per body: autodiff's transpose is fine).
     _, rotation_vjp = jax.vjp(quat_ops.rotation_matrix_parts, quat)
-    g_quat, = rotation_vjp(_rows_of(tuple(jnp.broadcast_to(g, quat[0].shape) for g in g_rotation)))
+    g_quat, = rotation_vjp(vec.matrix_rows(tuple(jnp.broadcast_to(g, quat[0].shape) for g in g_rotation)))
     # (sums' vel and angvel hold the predicted velocities' cotangents already.)
     return (sums["pos"], sums["vel"], g_quat, sums["angvel"], tuple(helds_in), vec.along(h * inv_mass, g_predicted_vel),
             g_torque_ext, body, rows)
@@ -317,7 +318,7 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     for _ in range(model.substeps):
         # R(q) stored once: the contact rows, their adjoint and the substep's all read it
         # (docs/performance.md, section 41).
-        rotation = vec.stored_matrix(quat_ops.rotation_matrix_parts(state[2]), keep)
+        rotation = rotation_stored(state[2], params)  # as the forward's substep stores it
         now = dataclasses.replace(carry, pos=state[0], vel=state[1], quat=state[2], angvel=state[3], friction=held)
         record = dict(angvel=state[3], rotation=rotation)
         contact_force, contact_torque, _, held = fast._penalty(now, rotation, params, prepared, force, torque, h,
@@ -355,11 +356,6 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     return (*g_state, g_normals, g_helds), body, rows, g_force, g_torque
 
 
-def _rows_of(entries):
-    """A 9-tuple of entries row by row -> 3 rows of 3, as ``components.matrix_parts`` lays a matrix out."""
-    return tuple(tuple(entries[3 * i:3 * i + 3]) for i in range(3))
-
-
 def _prepared_cotangent(prepared, body, rows):
     """``prepare``'s output's cotangent from the backward loop's sums (rows summed over each pair's points)."""
     pair_sum = lambda values: jnp.sum(values, axis=-1, keepdims=True)
@@ -368,12 +364,12 @@ def _prepared_cotangent(prepared, body, rows):
         groups.append(dict(
             data, local=tuple(jnp.broadcast_to(g, x.shape) for g, x in zip(group_rows["local"], data["local"])),
             inv_mass=pair_sum(group_rows["inv_mass"]),
-            inv_inertia=_rows_of(tuple(jnp.broadcast_to(pair_sum(g), data["inv_mass"].shape)
+            inv_inertia=vec.matrix_rows(tuple(jnp.broadcast_to(pair_sum(g), data["inv_mass"].shape)
                                        for g in group_rows["inv_inertia"])),
             friction=pair_sum(group_rows["friction"]), damping=pair_sum(group_rows["damping"]),
             offset=jnp.zeros_like(data["offset"]), radius=jnp.zeros_like(data["radius"])))
-    return dict(inv_mass=body["inv_mass"], inertia=_rows_of(body["inertia"]),
-                inv_inertia=_rows_of(body["inv_inertia"]), groups=tuple(groups))
+    return dict(inv_mass=body["inv_mass"], inertia=vec.matrix_rows(body["inertia"]),
+                inv_inertia=vec.matrix_rows(body["inv_inertia"]), groups=tuple(groups))
 
 
 def rollout(step: Callable, state: State, params: Params, num_steps: int, every: int,
