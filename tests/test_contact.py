@@ -235,7 +235,7 @@ def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
     a plane on side B (the static row n); with a broadphase the picked pairs'
     bodies are data, read one pair at a time.
     """
-    from jaxrb.collision.pairs import detect, row_summer, row_taker, static_rows
+    from jaxrb.collision.pairs import detect, plane_rows, row_summer, row_taker, static_rows
 
     scene = rb.Scene(dim=3)
     scene.add_plane()
@@ -256,6 +256,9 @@ def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
             np.testing.assert_array_equal(take(bodies, side), padded[rows])
             np.testing.assert_allclose(add(values, side), jax.ops.segment_sum(values, rows, 5)[:4],
                                        rtol=1e-6, atol=1e-6)
+        # The sequential solver's rows against a plane move body A alone.
+        np.testing.assert_array_equal(plane_rows(model), np.asarray(b) == 4)
+        assert 0 < plane_rows(model).sum() < len(b)
 
 
 @pytest.mark.parametrize("contact", MODELS)

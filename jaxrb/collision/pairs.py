@@ -220,6 +220,15 @@ def round_sides(model: Model):
     return tuple(np.concatenate(side) if side else np.zeros(0, dtype=bool) for side in sides)
 
 
+def plane_rows(model: Model):
+    """Whether each contact row's side B is a plane (the static row): a (C,) numpy bool array.
+
+    In :func:`detect`'s row order, static like :func:`round_sides`.
+    """
+    rows = [np.full(group.capacity * group.slots, group.b_is_plane) for group in model.pair_groups]
+    return np.concatenate(rows) if rows else np.zeros(0, dtype=bool)
+
+
 def _bodies_piece(bodies, repeat, static_row=None):
     """How to read ``bodies`` (static ints), each repeated ``repeat`` times, off a per-body array.
 

@@ -62,10 +62,11 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxrb import quaternion as quat_ops
 from jaxrb._struct import pytree_dataclass
-from jaxrb.collision.pairs import round_sides, row_summer, row_taker
+from jaxrb.collision.pairs import plane_rows, round_sides, row_summer, row_taker
 from jaxrb.contact.common import (apply_inverse_inertia, clamp_to_disc,
                                   moment, pad, tangent_basis,
                                   world_inverse_inertia)
@@ -425,7 +426,7 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, impulses, separation, 
         bodies, friction = _row_friction(model, row, bodies, old[1:], normal)
         return bodies, (normal, *friction)
 
-    (vel, angvel), impulses = _sweep_rows(prep, one_contact, (vel, angvel), impulses, separation, (h, soft))
+    (vel, angvel), impulses = _sweep_rows(model, prep, one_contact, (vel, angvel), impulses, separation, (h, soft))
     return vel, angvel, impulses
 
 
@@ -495,13 +496,19 @@ def _row(prep: Prepared, index) -> Prepared:
 
 
 def _read_bodies(arrays, a, b):
-    """Bodies a and b of each padded per-body array: (v_a, ω_a, v_b, ω_b) for (vel, angvel)."""
-    return tuple(_take(array, a) for array in arrays) + tuple(_take(array, b) for array in arrays)
+    """Bodies a and b of each padded per-body array: (v_a, ω_a, v_b, ω_b) for (vel, angvel).
+
+    ``b`` None (a row against a plane) gives None for B's values: a row
+    then reads, moves and differentiates body A alone.
+    """
+    return (tuple(_take(array, a) for array in arrays)
+            + tuple(None if b is None else _take(array, b) for array in arrays))
 
 
 def _write_bodies(arrays, a, b, bodies):
     """Put :func:`_read_bodies`' values back (the two bodies of a row are never the same)."""
-    put = lambda array, value, body: jax.lax.dynamic_update_index_in_dim(array, value, body, 0)
+    put = lambda array, value, body: array if body is None else jax.lax.dynamic_update_index_in_dim(
+        array, value, body, 0)
     return tuple(put(put(array, at_a, a), at_b, b)
                  for array, at_a, at_b in zip(arrays, bodies[:len(arrays)], bodies[len(arrays):]))
 
@@ -511,16 +518,21 @@ def _row_speed(row, k, bodies):
     va, wa, vb, wb = bodies
     direction = (row.normal,) + tuple(row.tangents)
     maps = row.maps
-    return jnp.sum(direction[k] * (va - vb)) + jnp.sum(maps.turn_a[k] * wa) - jnp.sum(maps.turn_b[k] * wb)
+    speed = jnp.sum(direction[k] * va) + jnp.sum(maps.turn_a[k] * wa)
+    if vb is None:  # against a plane
+        return speed
+    return speed - jnp.sum(direction[k] * vb) - jnp.sum(maps.turn_b[k] * wb)
 
 
 def _row_push(row, k, bodies, impulse):
-    """The row's bodies after an impulse (scalar) along its direction k: +A, −B."""
+    """The row's bodies after an impulse (scalar) along its direction k: +A, −B (B None: a plane)."""
     va, wa, vb, wb = bodies
     direction = ((row.normal,) + tuple(row.tangents))[k]
     maps = row.maps
-    return (va + impulse * maps.inv_mass_a * direction, wa + impulse * maps.spin_a[k],
-            vb - impulse * maps.inv_mass_b * direction, wb - impulse * maps.spin_b[k])
+    va, wa = va + impulse * maps.inv_mass_a * direction, wa + impulse * maps.spin_a[k]
+    if vb is None:
+        return va, wa, vb, wb
+    return va, wa, vb - impulse * maps.inv_mass_b * direction, wb - impulse * maps.spin_b[k]
 
 
 def _row_friction(model, row, bodies, old_friction, normal):
@@ -570,7 +582,7 @@ def _friction_impulses(model, prep, speeds, old_friction, normal) -> list:
     return [clamped[..., k] for k in range(len(friction))]
 
 
-def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), rows=None):
+def _sweep_rows(model: Model, prep: Prepared, update, arrays, lam, per_row=None, extra=(), rows=None):
     """Run ``update(row, bodies, lam_row, per_row_values, extra) -> (bodies, lam_row)`` on rows in order.
 
     Args:
@@ -601,29 +613,53 @@ def _sweep_rows(prep: Prepared, update, arrays, lam, per_row=None, extra=(), row
     still skipped, and one active in some world is a select of the per-body
     arrays, O(n) per row, where a branch that also carried the (C, 1 + dim)
     impulses made each row O(C).
+
+    Rows against a plane read and move body A alone (``bodies``' B values
+    are None): the static row's velocity is zero and stays so, and carrying
+    it, its maps and their cotangents through every row cost the bouncing
+    box's forward a fifth of its time and its gradient two fifths
+    (docs/performance.md, section 43). The rows are swept in their order, in
+    one scan per run of rows that do or do not have a plane.
     """
-    def solve_row(index, arrays, old, prep, per_row, extra):
+    def solve_row(against_plane, index, arrays, old, prep, per_row, extra):
         row = _row(prep, index)
-        bodies = _read_bodies(arrays, row.body_a, row.body_b)
+        body_b = None if against_plane else row.body_b
+        bodies = _read_bodies(arrays, row.body_a, body_b)
         row_values = jax.tree_util.tree_map(lambda field: _take(field, index), per_row)
         bodies, new = update(row, bodies, old, row_values, extra)
-        return _write_bodies(arrays, row.body_a, row.body_b, bodies), new
+        return _write_bodies(arrays, row.body_a, body_b, bodies), new
 
     # Reverse mode keeps each row's input bodies and recomputes the row, not
     # a stack per intermediate of every row: the sequential bouncing box's
     # gradient compiled in 21 s instead of 33 s and ran in 0.87-1.02x the
     # time, where rematerialising whole passes took 1.16-1.23x
     # (docs/performance.md, section 37).
-    @partial(jax.checkpoint, prevent_cse=False)
-    def body(arrays, row_slice):
-        index, old, row_active = row_slice
-        return _guarded_row(solve_row, row_active, (index, arrays, old, prep, per_row, extra))
+    def body(against_plane):
+        @partial(jax.checkpoint, prevent_cse=False)
+        def one_row(arrays, row_slice):
+            index, old, row_active = row_slice
+            return _guarded_row(partial(solve_row, against_plane), row_active,
+                                (index, arrays, old, prep, per_row, extra))
+        return one_row
 
     if rows is None:
-        indices, active = jnp.arange(prep.normal.shape[0]), prep.active
+        indices, active = np.arange(prep.normal.shape[0]), prep.active
     else:
-        indices, active = jnp.asarray(rows), prep.active[rows]
-    return jax.lax.scan(body, tuple(arrays), (indices, lam, active))
+        indices, active = np.asarray(rows), prep.active[rows]
+    against_plane = plane_rows(model)[indices]
+    bounds = [0] + [i for i in range(1, len(indices)) if against_plane[i] != against_plane[i - 1]] + [len(indices)]
+    arrays, swept = tuple(arrays), []
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        run = (lambda values: values) if len(bounds) == 2 else (
+            lambda values: jax.tree_util.tree_map(lambda v: v[start:stop], values))
+        arrays, new = jax.lax.scan(body(bool(against_plane[start])), arrays,
+                                   (jnp.asarray(indices[start:stop]), run(lam), run(active)))
+        swept.append(new)
+    if len(swept) == 1:
+        return arrays, swept[0]
+    return arrays, jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts), *swept)
+
+
 
 
 # Why a custom JVP: the branch that skips an inactive row is what makes the
@@ -730,5 +766,5 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, impulses, thresh
         normal = new_normal(_row_speed(row, 0, bodies), old[0], row, threshold)
         return _row_push(row, 0, bodies, normal - old[0]), (normal, *old[1:])
 
-    (vel, angvel), impulses = _sweep_rows(prep, one_contact, (vel, angvel), impulses, extra=threshold)
+    (vel, angvel), impulses = _sweep_rows(model, prep, one_contact, (vel, angvel), impulses, extra=threshold)
     return vel, angvel, impulses

@@ -109,7 +109,7 @@ def resolve_impacts(model: Model, prep: Prepared, vel, angvel, separation, owned
     """
     hits = owned & (separation < -prep.approach * h)
     arrays = (vel, angvel, jnp.zeros_like(vel), jnp.zeros_like(angvel))
-    arrays, _ = _sweep_rows(prep.replace(active=hits), partial(_impact, model), arrays, None,
+    arrays, _ = _sweep_rows(model, prep.replace(active=hits), partial(_impact, model), arrays, None,
                             (separation, start_speed), h, rows=rows)
     return arrays
 
@@ -148,7 +148,7 @@ def _impact(model, row, bodies, _, row_values, h):
     # rebound's mean velocity over the rest of the substep, not with its end
     # value: a normal displacement of Δ·t(h − t)/(2h), given to the bodies as
     # a "position impulse" in proportion to their inverse masses.
-    moved = tuple(pose + (old - changed) * time
+    moved = tuple(None if pose is None else pose + (old - changed) * time  # B None: a plane
                   for pose, old, changed in zip((shift_a, turn_a, shift_b, turn_b), velocities, new))
     lag = row.normal_mass * load_change * fraction * (h - time) / 2.0
     shift_a, turn_a, shift_b, turn_b = _row_push(row, 0, moved, lag)
