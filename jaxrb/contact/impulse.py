@@ -518,10 +518,9 @@ def _row_speed(row, k, bodies):
     va, wa, vb, wb = bodies
     direction = (row.normal,) + tuple(row.tangents)
     maps = row.maps
-    speed = jnp.sum(direction[k] * va) + jnp.sum(maps.turn_a[k] * wa)
     if vb is None:  # against a plane
-        return speed
-    return speed - jnp.sum(direction[k] * vb) - jnp.sum(maps.turn_b[k] * wb)
+        return jnp.sum(direction[k] * va) + jnp.sum(maps.turn_a[k] * wa)
+    return jnp.sum(direction[k] * (va - vb)) + jnp.sum(maps.turn_a[k] * wa) - jnp.sum(maps.turn_b[k] * wb)
 
 
 def _row_push(row, k, bodies, impulse):
@@ -617,7 +616,7 @@ def _sweep_rows(model: Model, prep: Prepared, update, arrays, lam, per_row=None,
     Rows against a plane read and move body A alone (``bodies``' B values
     are None): the static row's velocity is zero and stays so, and carrying
     it, its maps and their cotangents through every row cost the bouncing
-    box's forward a fifth of its time and its gradient two fifths
+    box's forward a fifth of its time and its gradient about a third
     (docs/performance.md, section 43). The rows are swept in their order, in
     one scan per run of rows that do or do not have a plane.
     """
@@ -647,19 +646,15 @@ def _sweep_rows(model: Model, prep: Prepared, update, arrays, lam, per_row=None,
     else:
         indices, active = np.asarray(rows), prep.active[rows]
     against_plane = plane_rows(model)[indices]
-    bounds = [0] + [i for i in range(1, len(indices)) if against_plane[i] != against_plane[i - 1]] + [len(indices)]
+    cuts = [0, *(np.flatnonzero(np.diff(against_plane)) + 1), len(indices)]
+    whole = len(cuts) == 2  # one run: the per-row values go in unsliced
+    part = lambda values, start, stop: values if whole else jax.tree_util.tree_map(lambda v: v[start:stop], values)
     arrays, swept = tuple(arrays), []
-    for start, stop in zip(bounds[:-1], bounds[1:]):
-        run = (lambda values: values) if len(bounds) == 2 else (
-            lambda values: jax.tree_util.tree_map(lambda v: v[start:stop], values))
+    for start, stop in zip(cuts[:-1], cuts[1:]):
         arrays, new = jax.lax.scan(body(bool(against_plane[start])), arrays,
-                                   (jnp.asarray(indices[start:stop]), run(lam), run(active)))
+                                   (jnp.asarray(indices[start:stop]), *part((lam, active), start, stop)))
         swept.append(new)
-    if len(swept) == 1:
-        return arrays, swept[0]
-    return arrays, jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts), *swept)
-
-
+    return arrays, swept[0] if whole else jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts), *swept)
 
 
 # Why a custom JVP: the branch that skips an inactive row is what makes the
