@@ -18,19 +18,33 @@ so they are not set: docs/performance.md, section 6.)
 ``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_DOT``
 before JAX starts has the same effect process-wide.
 
-One more CPU setting can only be made process-wide, before JAX compiles
-anything, so ``import jaxrb`` makes it (:func:`use_xla_cpu_flags`): XLA's
-threshold for compiling a ``while`` loop as one function
-(``xla_cpu_small_while_loop_byte_threshold``, 1 kB by default). Above the
-threshold, every fused kernel of a loop body is dispatched on its own, and a
-one-world step is dozens of kernels of a few numbers each, so dispatch is
-its cost: raised, a 1 000-step rollout of one tumbling body runs in 0.09–0.21
-ms instead of 0.25–0.85 ms and its gradient in 0.9–1.1 ms instead of 12 ms
-(docs/performance.md, section 8). It changes only how loops are compiled,
-not what they compute, apart from rounding (fused multiply-adds may be
-contracted elsewhere). Set ``JAXRB_XLA_FLAGS=0`` to leave ``XLA_FLAGS`` alone;
-a ``XLA_FLAGS`` that already sets ``xla_backend_extra_options`` is left alone
-too.
+Two more CPU settings can only be made process-wide, before JAX compiles
+anything, so ``import jaxrb`` makes them (:func:`use_xla_cpu_flags`):
+
+- XLA's threshold for compiling a ``while`` loop as one function
+  (``xla_cpu_small_while_loop_byte_threshold``, 1 kB by default). Above the
+  threshold, every fused kernel of a loop body is dispatched on its own, and a
+  one-world step is dozens of kernels of a few numbers each, so dispatch is
+  its cost: raised, a 1 000-step rollout of one tumbling body runs in
+  0.09–0.21 ms instead of 0.25–0.85 ms and its gradient in 0.9–1.1 ms
+  instead of 12 ms (docs/performance.md, section 8).
+- LLVM's full unrolling limited to loops of at most 4 trips
+  (``-unroll-full-max-count=4``, an LLVM option XLA passes on). At one world
+  a contact scene's per-row values are loops of a few trips (a box on a
+  plane: its 8 corners); LLVM unrolled each into scalar code before its
+  loop vectoriser could make it one 8-wide operation. Limited, the penalty
+  box drop's one-world rollout ran 1.3–1.5× as fast and its adjoint gradient
+  1.5×, with batched programs as fast as before to within 10 %
+  (docs/performance.md, section 47). It is left out where a GPU or TPU
+  plugin for JAX is installed (and ``JAX_PLATFORMS`` is not ``cpu``): XLA
+  passes LLVM options to its GPU code generator too, and it was measured on
+  CPUs only.
+
+Both change only how loops are compiled, not what they compute, apart from
+rounding (fused multiply-adds may be contracted elsewhere, and a vectorised
+sum over rows adds in another order, which XLA's reductions allow). Set
+``JAXRB_XLA_FLAGS=0`` to leave ``XLA_FLAGS`` alone; a ``XLA_FLAGS`` that
+already sets ``xla_backend_extra_options`` is left alone too.
 
 On a GPU, XLA may compute a float32 matrix product in TF32 (a 10-bit
 mantissa) unless told otherwise. The box-box narrowphase is written with
@@ -59,8 +73,37 @@ CPU_COMPILER_OPTIONS = {
 }
 
 
-#: What :func:`use_xla_cpu_flags` appends to ``XLA_FLAGS``.
-CPU_XLA_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+#: XLA's threshold for compiling a ``while`` loop as one function (section 8).
+LOOP_THRESHOLD_OPTION = "xla_cpu_small_while_loop_byte_threshold=1000000000"
+
+#: LLVM's full unrolling limited to loops of at most 4 trips (section 47).
+UNROLL_LIMIT_OPTION = "-unroll-full-max-count=4"
+
+
+def accelerator_plugin_installed() -> bool:
+    """Whether JAX may run on a GPU or TPU here: a JAX plugin or libtpu is installed and ``JAX_PLATFORMS`` allows it.
+
+    Decided without starting JAX, which would fix ``XLA_FLAGS`` before
+    :func:`use_xla_cpu_flags` could add to it.
+    """
+    import importlib.metadata
+    import importlib.util
+
+    if os.environ.get("JAX_PLATFORMS", "").strip().lower() == "cpu":
+        return False
+    if importlib.util.find_spec("jax_plugins") is not None or importlib.util.find_spec("libtpu") is not None:
+        return True
+    return bool(importlib.metadata.entry_points(group="jax_plugins"))
+
+
+def cpu_xla_flag(accelerator: bool) -> str:
+    """The ``XLA_FLAGS`` entry :func:`use_xla_cpu_flags` appends: the loop threshold, and the unroll limit unless ``accelerator``."""
+    options = [LOOP_THRESHOLD_OPTION] + ([] if accelerator else [UNROLL_LIMIT_OPTION])
+    return "--xla_backend_extra_options=" + ",".join(options)
+
+
+#: What :func:`use_xla_cpu_flags` appends to ``XLA_FLAGS`` in this process.
+CPU_XLA_FLAG = cpu_xla_flag(accelerator_plugin_installed())
 
 #: Precision of every matrix product traced under :func:`full_precision`
 #: (``jax.default_matmul_precision``'s values; ``None`` leaves JAX's default).

@@ -70,6 +70,56 @@ def test_import_sets_the_loop_threshold_only_when_it_can_and_may(env, prelude, s
     assert _status_in_fresh_process(env, prelude) == (status, flags)
 
 
+def test_the_unroll_limit_is_left_out_where_an_accelerator_plugin_may_run(tmp_path):
+    threshold, limit = rb.compile.LOOP_THRESHOLD_OPTION, rb.compile.UNROLL_LIMIT_OPTION
+    assert rb.compile.cpu_xla_flag(False) == f"--xla_backend_extra_options={threshold},{limit}"
+    assert rb.compile.cpu_xla_flag(True) == f"--xla_backend_extra_options={threshold}"
+    (tmp_path / "jax_plugins").mkdir()  # the namespace package a GPU plugin for JAX installs
+    prelude = f"import sys; sys.path.insert(0, {str(tmp_path)!r})"
+    assert _status_in_fresh_process({"JAX_PLATFORMS": ""}, prelude) == ("set", rb.compile.cpu_xla_flag(True))
+    assert _status_in_fresh_process({"JAX_PLATFORMS": "cpu"}, prelude) == ("set", rb.compile.cpu_xla_flag(False))
+
+
+_VECTOR_OPS_CODE = """
+import glob, os, sys
+import jaxrb as rb
+scene = rb.Scene(dim=3)
+scene.add_plane(friction=0.5)
+scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.0999))
+model, params, state = scene.build(dt=2e-3, contact="penalty")
+step = rb.make_step(model)
+rb.jit(lambda s, p: rb.rollout(step, s, p, 10)).lower(state, params).compile()
+text = "".join(open(f).read() for f in glob.glob(os.path.join(sys.argv[1], "*ir-with-opt.ll")))
+print(text.count("<8 x float>"))
+"""
+
+
+@pytest.mark.slow  # two new interpreters compile a rollout each: ~10 s
+def test_the_unroll_limit_lets_llvm_vectorise_a_box_s_eight_corners(tmp_path):
+    """What the limit is for: with it, the 8 contact rows of a box on a plane compile to 8-wide operations.
+
+    Without it LLVM unrolls each 8-trip row loop into scalar code first
+    (docs/performance.md, section 47), so the count of 8-wide values in the
+    compiled one-world rollout's LLVM IR is what shows the limit at work.
+    """
+    import os
+    import subprocess
+    import sys
+
+    if jax.default_backend() != "cpu":
+        pytest.skip("LLVM IR of the CPU backend")
+    counts = {}
+    for name, options in (("limited", [rb.compile.LOOP_THRESHOLD_OPTION, rb.compile.UNROLL_LIMIT_OPTION]),
+                          ("unlimited", [rb.compile.LOOP_THRESHOLD_OPTION])):
+        dump = tmp_path / name
+        flags = f"--xla_dump_to={dump} --xla_backend_extra_options={','.join(options)}"
+        env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu", JAX_ENABLE_X64="0")
+        done = subprocess.run([sys.executable, "-c", _VECTOR_OPS_CODE, str(dump)], env=env,
+                              capture_output=True, text=True, check=True)
+        counts[name] = int(done.stdout.split()[-1])
+    assert counts["limited"] > 10 and counts["limited"] > 2 * counts["unlimited"], counts
+
+
 def test_the_loop_threshold_compiles_a_rollout_as_one_function():
     """In this process (the flag in XLA_FLAGS before JAX started) a one-body rollout's loop is hoisted.
 
