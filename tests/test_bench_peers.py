@@ -100,6 +100,8 @@ def test_markdown_is_well_formed(section):
         assert len(counts) == 1, table  # every line has the same number of cells
         assert set(lines[1].replace("|", "").split()) <= {"-" * n + ":" for n in range(1, 200)} | \
             {":" + "-" * n for n in range(1, 200)}
+    # Under jaxrb's unroll limit the peers ran in a process of their own, and the text says so.
+    assert ("in a process of their own" in text) == (peers.peer_process_flags() is not None)
     statuses = {t.status for t in results["targets"]}
     assert statuses <= {"PASS", "MISSED", "NOT MEASURED"}
     assert all(f"**{t.status}**" in text for t in results["targets"])
@@ -228,10 +230,27 @@ def test_failing_peer_becomes_a_note(monkeypatch):
     monkeypatch.setattr(peers, "jaxrb_stack", lambda model, batch, seconds, settings: row(
         "stack", "jaxrb", 1e5, batch=batch, bodies=10, sink=1e-3, drift=1e-4, stands=True))
     monkeypatch.setattr(peers, "mujoco_stack", broken)
+    monkeypatch.setattr(peers, "peer_process_flags", lambda flags=None: None)  # the patches hold here only
     text, results = peers.peers_section(dict(TINY, peers_scenes=("stack",), peers_engines=("mujoco",)))
     assert [r.engine for r in results["rows"]] == ["jaxrb"]
     assert "RuntimeError: boom" in results["skipped"]["mujoco (stack)"]
     assert "boom" in text
+
+
+def test_the_peers_process_drops_only_the_unroll_limit():
+    limit, threshold = peers.rb_compile.UNROLL_LIMIT_OPTION, peers.rb_compile.LOOP_THRESHOLD_OPTION
+    assert peers.peer_process_flags(f"--a=1 --xla_backend_extra_options={threshold},{limit}") == \
+        f"--a=1 --xla_backend_extra_options={threshold}"
+    assert peers.peer_process_flags(f"--xla_backend_extra_options={limit},{threshold}") == \
+        f"--xla_backend_extra_options={threshold}"
+    assert peers.peer_process_flags(f"--xla_backend_extra_options={threshold}") is None
+    assert peers.peer_process_flags("") is None
+
+
+@pytest.mark.slow  # a new interpreter imports jaxrb and JAX: ~5 s
+def test_a_peers_process_that_fails_becomes_a_note():
+    rows, skipped = peers._run_in_child(dict(peers.FULL, peers_scenes=("cloth",)), "")
+    assert rows == [] and "exited with 1" in skipped["peers (cloth)"]
 
 
 def test_bad_settings_are_value_errors():

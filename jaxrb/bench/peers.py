@@ -50,6 +50,13 @@ Timing is :func:`jaxrb.bench.timing.time_jitted` for everything jitted
 loop over worlds in C, one thread). Peers' JAX code runs with x64 disabled
 so that they compute in float32 like jaxrb's throughput runs.
 
+Where ``import jaxrb`` set LLVM's unroll limit (:data:`jaxrb.compile.UNROLL_LIMIT_OPTION`),
+each scene's peers run in a child process whose ``XLA_FLAGS`` are this
+process's without it (:func:`peer_process_flags`): LLVM options hold for a
+whole process, and the limit slowed Brax spring's batched drop by about 6 %
+(docs/performance.md, section 47). jaxrb's rows of the scene run here first,
+then the child's; the loop threshold stays in both, as in the reports before.
+
 Settings (:data:`QUICK`, :data:`FULL`; every key starts with ``peers_``):
 ``scenes`` and ``engines`` to run; ``drop_batch``/``drop_steps`` and
 ``drop_jaxrb`` (jaxrb's (contact, dt, substeps) settings); ``mujoco_worlds`` (worlds in
@@ -76,7 +83,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import os
+import pickle
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
@@ -85,6 +97,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb import analytic
+from jaxrb import compile as rb_compile
 from jaxrb.bench import contact, free_body
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 from jaxrb.bench.timing import final_state_fn, time_jitted
@@ -914,8 +927,52 @@ def _find_flip(rows, engine, h) -> Optional[PeerRow]:
 
 # --- the section ----------------------------------------------------------------------------
 
+def peer_process_flags(flags: Optional[str] = None) -> Optional[str]:
+    """``XLA_FLAGS`` for a child process that runs the peers, or ``None`` to run them in this one.
+
+    Args:
+        flags: this process's ``XLA_FLAGS`` (default: the environment's).
+
+    Returns:
+        ``flags`` without jaxrb's LLVM unroll limit where they hold it, else ``None``.
+    """
+    flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
+    limit = rb_compile.UNROLL_LIMIT_OPTION
+    if limit not in flags:
+        return None
+    return flags.replace("," + limit, "").replace(limit + ",", "").replace(limit, "")
+
+
+def _run_in_child(settings: dict, flags: str) -> Tuple[List[PeerRow], Dict[str, str]]:
+    """:func:`run_peers` with ``settings`` in a new interpreter whose ``XLA_FLAGS`` are ``flags``.
+
+    The child's progress lines go to this process's stderr; a child that
+    fails becomes one note in ``skipped``.
+    """
+    with tempfile.TemporaryDirectory() as folder:
+        path = os.path.join(folder, "peers.pickle")
+        with open(path, "wb") as handle:
+            pickle.dump(settings, handle)
+        code = ("import pickle, sys\n"
+                "from jaxrb.bench import peers\n"
+                "settings = pickle.load(open(sys.argv[1], 'rb'))\n"
+                "log = lambda text: print(text, file=sys.stderr, flush=True)\n"
+                "result = peers.run_peers(settings, log)\n"
+                "pickle.dump(result, open(sys.argv[1], 'wb'))\n")
+        done = subprocess.run([sys.executable, "-c", code, path], env=dict(os.environ, XLA_FLAGS=flags),
+                              stdout=subprocess.DEVNULL, stderr=None)
+        if done.returncode != 0:
+            scenes = ", ".join(settings["peers_scenes"])
+            return [], {f"peers ({scenes})": f"failed: their process exited with {done.returncode}"}
+        with open(path, "rb") as handle:
+            return pickle.load(handle)
+
+
 def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
     """Run every scene for jaxrb and every available peer.
+
+    Where :func:`peer_process_flags` asks for it, each scene's peers run in a
+    child process after jaxrb's rows of the scene.
 
     Args:
         settings: :data:`QUICK`, :data:`FULL` or a dict with the same keys.
@@ -931,6 +988,22 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
     if unknown:
         raise ValueError(f"peers_scenes: unknown {unknown}; valid: {', '.join(SCENE_TITLES)}")
     modules, skipped = load_peers(settings["peers_engines"])
+    child_flags = peer_process_flags()
+    if modules and child_flags is not None:
+        rows: List[PeerRow] = []
+        for scene in settings["peers_scenes"]:
+            here = dict(settings, peers_scenes=(scene,))
+            mine, _ = _run_here(dict(here, peers_engines=()), {}, {}, log)
+            theirs, why = _run_in_child(dict(here, peers_with_jaxrb=False), child_flags)
+            rows += mine + theirs
+            skipped.update(why)
+        return rows, skipped
+    return _run_here(settings, modules, skipped, log)
+
+
+def _run_here(settings: dict, modules: dict, skipped: Dict[str, str],
+              log) -> Tuple[List[PeerRow], Dict[str, str]]:
+    """:func:`run_peers` in this process, with the peers ``modules`` that :func:`load_peers` found."""
     rows: List[PeerRow] = []
 
     def attempt(engine: str, scene: str, make: Callable):
@@ -1105,7 +1178,11 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
     """
     settings = {**FULL, **settings}
     parts = [
-        "Peers and jaxrb run in the same process, one after the other, on the same scenes. "
+        "Peers and jaxrb run one after the other on the same scenes"
+        + (", each scene's peers in a process of their own without jaxrb's LLVM unroll limit "
+           "(jaxrb.compile.UNROLL_LIMIT_OPTION; the XLA flags otherwise the same). "
+           if peer_process_flags() is not None and any(r.engine != "jaxrb" for r in rows)
+           else ", in the same process. ") +
         "float32 for every JAX engine (peers' JAX code runs with x64 off); MuJoCo C is float64. "
         "*compile* = trace + lower + compile (— for compiled C code); *run* = median wall time of one "
         "call (after a warm-up call for jitted code), with block_until_ready; body-steps/s = batch · "
