@@ -993,10 +993,10 @@ def run_peers(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
         rows: List[PeerRow] = []
         for scene in settings["peers_scenes"]:
             here = dict(settings, peers_scenes=(scene,))
-            mine, _ = _run_here(dict(here, peers_engines=()), {}, {}, log)
-            theirs, why = _run_in_child(dict(here, peers_with_jaxrb=False), child_flags)
+            mine, why_mine = _run_here(dict(here, peers_engines=()), {}, {}, log)
+            theirs, why_theirs = _run_in_child(dict(here, peers_with_jaxrb=False), child_flags)
             rows += mine + theirs
-            skipped.update(why)
+            skipped.update({**why_mine, **why_theirs})
         return rows, skipped
     return _run_here(settings, modules, skipped, log)
 
