@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-SECTIONS = ("speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
+SECTIONS = ("real_data", "speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
             "smoothing")
 
 #: What each mode runs. ``quick`` shows every section at one or two settings
@@ -107,6 +107,8 @@ def main(argv=None) -> int:
                        "overlap recovery, long rest (small sizes with --quick)"),
         "peers": ("the same scenes in each installed peer (pip install -e \".[peers]\"), "
                   "same run, ratios jaxrb / peer and the issue's targets"),
+        "real_data": ("400 measured cube tosses, half fitted, half scored; MuJoCo and Bullet with the "
+                      "publishers' parameters (needs ../shared/data/cube_tosses)"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -134,6 +136,11 @@ def main(argv=None) -> int:
 
         return peers.peers_section(peers.QUICK if args.quick else peers.FULL, log)
 
+    def run_real_data():
+        from jaxrb.bench import real_data
+
+        return real_data.real_data_section(real_data.QUICK if args.quick else real_data.FULL, log)
+
     def run_contact():
         from jaxrb.bench import contact
 
@@ -145,6 +152,7 @@ def main(argv=None) -> int:
         return gradients.gradients_section(settings, log)
 
     runners = {
+        "real_data": ("Real data: measured cube tosses beside MuJoCo and Bullet", run_real_data),
         "speed_error": ("Speed against error", run_speed_error),
         "hard_cases": ("Hard cases: stability, pass or fail", run_hard_cases),
         "peers": ("Peers side by side: MuJoCo, MJX, Brax, Jax2D, pymunk", run_peers),
