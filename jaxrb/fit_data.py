@@ -58,7 +58,10 @@ class DataFit:
     Attributes:
         params: the fitted Params.
         fields: the fitted field names.
-        standard_errors: {field: array like the field} robust standard errors.
+        standard_errors: {field: array like the field} robust standard errors
+            of the final values: of the rollout loss's minimum when the
+            rollout search ran (:func:`jaxrb.least_squares.difference_covariance`),
+            else of the last LM stage; ``inf`` where the data do not determine it.
         reliability: {field: array} gradient signal-to-noise where the last
             LM stage started (:func:`jaxrb.least_squares.gradient_reliability`);
             below 2 the trajectories disagree on which way the field should move.
@@ -86,6 +89,12 @@ class DataFit:
                 label = name if value.size == 1 else f"{name}[{i}]"
                 lines.append(f"{label:>22s} = {value[i]:.5g} ± {error[i]:.2g}  (gradient signal/noise "
                              f"{snr[i]:.2g}{', unreliable' if snr[i] < 2 else ''})")
+        if {"friction", "plane_friction"} & set(self.fields):
+            # Contacts mix √(μ_body μ_plane): only the product is identified, so fit one side and
+            # read the pair's coefficient here.
+            mixed = np.sqrt(np.outer(np.asarray(self.params.friction), np.asarray(self.params.plane_friction)))
+            lines += [f"{'pair friction':>22s}   body {i} on plane {j}: {mixed[i, j]:.4g}"
+                      for i in range(mixed.shape[0]) for j in range(mixed.shape[1])]
         return "\n".join(lines)
 
 
@@ -101,18 +110,16 @@ def check_fields(fields: Sequence[str]) -> tuple:
     return fields
 
 
-def rollout_loss(replay: evaluate.Replay) -> Callable:
-    """``loss(params)``: the protocol's mean position error (fraction of size) plus rotation weighed like it.
-
-    The weighting is :data:`jaxrb.shooting.ROTATION_WEIGHT` (10° counts as 10 %).
-    """
+def rollout_losses(replay: evaluate.Replay) -> Callable:
+    """``losses(params) -> (K,)``: each trajectory's protocol position error (fraction of size) plus
+    its rotation error weighed like it (:data:`jaxrb.shooting.ROTATION_WEIGHT`: 10° counts as 10 %)."""
     errors = evaluate.error_function(replay)
 
-    def loss(params):
+    def losses(params):
         position, rotation = errors(params)
-        return jnp.mean(position) / 100.0 + shooting.ROTATION_WEIGHT * jnp.radians(jnp.mean(rotation))
+        return position / 100.0 + shooting.ROTATION_WEIGHT * jnp.radians(rotation)
 
-    return loss
+    return losses
 
 
 def refine_on_rollouts(loss: Callable, theta, rounds: int = 3, width: float = 0.2,
@@ -133,7 +140,7 @@ def refine_on_rollouts(loss: Callable, theta, rounds: int = 3, width: float = 0.
         say: progress lines.
 
     Returns:
-        (theta (P,), loss there).
+        (theta (P,), loss there, resolution: the last round's smallest move in θ units).
     """
     batch = jax.jit(jax.vmap(loss))
     theta = np.asarray(theta, np.float64)
@@ -147,13 +154,14 @@ def refine_on_rollouts(loss: Callable, theta, rounds: int = 3, width: float = 0.
             losses = np.where(np.isfinite(losses), losses, np.inf)
             theta, best = candidates[int(np.argmin(losses))], float(np.min(losses))
         say(f"rollout search round {round_ + 1} (step {width:.3g}): loss {best:.5g}")
+        resolution = 0.5 * width
         width /= 3.0
-    return theta, best
+    return theta, best, resolution
 
 
 def fit_measured(model: Model, params: Params, state: State, trajectories: Trajectories, fields, *,
                  horizons: Sequence[int] = (8, 32), stride: int = 2, starts: int = 4, spread: float = 0.5,
-                 seed: int = 0, max_iterations: int = 20, refine_rounds: int = 3,
+                 seed: int = 0, max_iterations: int = 20, tol: float = 1e-3, refine_rounds: int = 3,
                  time_budget: Optional[float] = None, progress: Optional[Callable[[str], None]] = None,
                  state_path: Optional[str] = None, scale: Optional[float] = None) -> DataFit:
     """Fit ``fields`` of ``params`` to ``trajectories`` (module docstring).
@@ -178,6 +186,8 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
             for a log-transformed field).
         seed: seed of the draw.
         max_iterations: LM iterations per horizon.
+        tol: an LM stage ends when a step lowers its cost by less than this
+            fraction (0.1 %: finer is below what the rollout search resolves).
         refine_rounds: rounds of the rollout search (0: none).
         time_budget: seconds for the whole fit, compile included; a stage
             that starts after it is skipped.
@@ -186,8 +196,8 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         scale: the tracker's length scale; measured from free flight if None.
 
     Returns:
-        :class:`DataFit`: standard errors and gradient reliability are those
-        of the last LM stage; ``params`` holds the refined values.
+        :class:`DataFit`: ``params`` holds the refined values, the standard
+        errors are theirs, the gradient reliability that of the last LM stage.
     """
     clock = time.perf_counter()
     say = progress or (lambda line: None)
@@ -227,19 +237,28 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         groups = np.repeat(segments.trajectory, horizon * segments.pos.shape[2] * 6)
         last = number == len(horizons) - 1
         result = least_squares.levenberg_marquardt(
-            residuals, theta, groups, max_iterations=max_iterations, time_budget=left(), progress=say,
+            residuals, theta, groups, max_iterations=max_iterations, tol=tol, time_budget=left(), progress=say,
             state_path=state_path if last else None, describe=describe)
         theta = result.theta
+    covariance, start_gradients = result.covariance, result.start_gradients
     if refine_rounds and (left() is None or left() > 0):
         replay = evaluate.prepare_replay(model, params, state, trajectories, scale=scale)
-        loss = rollout_loss(replay)
-        theta, _ = refine_on_rollouts(lambda t: loss(to_params(t)), theta, refine_rounds, say=say)
+        losses = rollout_losses(replay)
+        theta, _, resolution = refine_on_rollouts(lambda t: jnp.mean(losses(to_params(t))), theta,
+                                                  refine_rounds, say=say)
+        # The values now minimise the rollout loss: their uncertainty is that loss's, by differences,
+        # plus the search's own resolution (a uniform error of ± resolution / 2).
+        say("standard errors of the rollout loss's minimum (differences)…")
+        covariance, _ = least_squares.difference_covariance(
+            jax.jit(jax.vmap(lambda t: losses(to_params(t)))), theta)
+        covariance = covariance + np.eye(theta.size) * resolution ** 2 / 12.0
     fitted = to_params(theta)
     # Standard errors of the values: the delta method through the transforms.
     values = lambda t: ravel_pytree({name: getattr(to_params(t), name) for name in fields})[0]  # noqa: E731
-    slope = np.asarray(jax.jacfwd(values)(jnp.asarray(result.theta, dtype)), np.float64)  # (V, P)
-    value_errors = np.sqrt(np.maximum(np.einsum("vp,pq,vq->v", slope, result.covariance, slope), 0.0))
-    snr = least_squares.gradient_reliability(result.start_gradients @ slope.T)  # per value
+    slope = np.asarray(jax.jacfwd(values)(jnp.asarray(theta, dtype)), np.float64)  # (V, P)
+    variance = np.einsum("vp,pq,vq->v", slope, np.nan_to_num(covariance, posinf=1e300), slope)
+    value_errors = np.where(np.isinf(np.diag(covariance)) @ (slope.T != 0), np.inf, np.sqrt(np.maximum(variance, 0)))
+    snr = least_squares.gradient_reliability(start_gradients @ slope.T)  # per value
     _, unravel_values = ravel_pytree({name: np.asarray(getattr(fitted, name), np.float64) for name in fields})
     return DataFit(params=fitted, fields=fields, standard_errors=unravel_values(value_errors),
                    reliability=unravel_values(snr), result=result, length_scale=scale,

@@ -127,6 +127,48 @@ def slope_check(cost: Callable, theta, gradient, steps=(1e-1, 1e-2, 1e-3)) -> di
     return out
 
 
+def difference_covariance(per_group: Callable, theta, step: float = 0.05) -> tuple:
+    """Sandwich covariance of the minimiser of a mean of per-group losses, by differences.
+
+    For an objective L(θ) = (1/G) Σ_k ℓ_k(θ) whose exact gradient is not worth
+    having (full rollouts through chaotic contact) but whose values are, the
+    Hessian H of L and the per-group gradients g_k of ℓ_k/G come from central
+    differences of width ``step`` (a slope at the scale of the search that
+    found θ), and Cov = H⁻¹ (Σ_k g_k g_kᵀ) H⁻¹, as in :func:`robust_covariance`.
+    Directions in which L curves down or not at all are not determined by the
+    data: their variance is infinite.
+
+    Args:
+        per_group: ``thetas (C, P) -> losses (C, G)``, every group's loss at each point.
+        theta: (P,) the minimiser.
+        step: difference width in θ units.
+
+    Returns:
+        (covariance (P, P), per-group gradients (G, P)).
+    """
+    theta = np.asarray(theta, np.float64)
+    count = theta.size
+    eye = np.eye(count) * step
+    pairs = [(i, j) for i in range(count) for j in range(i + 1, count)]
+    points = np.concatenate([theta[None], theta + eye, theta - eye]
+                            + ([np.stack([theta + eye[i] + eye[j] for i, j in pairs])] if pairs else []))
+    values = np.asarray(per_group(points), np.float64)  # (C, G)
+    groups = values.shape[1]
+    total = values.mean(axis=1)
+    centre, plus, minus = total[0], total[1:1 + count], total[1 + count:1 + 2 * count]
+    hessian = np.diag((plus - 2 * centre + minus) / step ** 2)
+    for (i, j), value in zip(pairs, total[1 + 2 * count:]):
+        hessian[i, j] = hessian[j, i] = (value - plus[i] - plus[j] + centre) / step ** 2
+    gradients = ((values[1:1 + count] - values[1 + count:1 + 2 * count]) / (2 * step * groups)).T  # (G, P)
+    curvature, axes = np.linalg.eigh(hessian)
+    determined = curvature > 0
+    inverse = (axes[:, determined] / curvature[determined]) @ axes[:, determined].T  # on determined directions
+    covariance = inverse @ (gradients.T @ gradients) @ inverse
+    loose = np.abs(axes[:, ~determined]).max(axis=1, initial=0.0) > 1e-6  # touches an undetermined direction
+    covariance[loose, loose] = np.inf
+    return covariance, gradients
+
+
 def _solve_step(hessian, gradient, lam):
     damped = hessian + lam * np.diag(np.maximum(np.diag(hessian), 1e-12))
     return -np.linalg.solve(damped, gradient)
