@@ -1,17 +1,11 @@
 """``jaxrb fit SCENE DATA --out FITTED`` and ``jaxrb evaluate SCENE DATA``.
 
-Both build the scene file with a whole number k of single steps per sample
-interval (``dt = sample spacing / k``, ``substeps = 1``), k the fewest that
-makes a step no longer than the file's ``dt / substeps``, so a scene written
-for 1 ms steps keeps steps of at most 1 ms; the file's other options stay.
-(A scan of single steps compiles far faster than unrolled substeps:
-:func:`jaxrb.evaluate.steps_per_sample`.)
+Both build the scene file with :func:`jaxrb.fit_data.build_for_data`.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from typing import Optional, Sequence
@@ -19,9 +13,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from jaxrb.evaluate import noise_floor, plot_scores, prepare_replay, score
-from jaxrb.fit_data import fit_measured, fitted_scene
+from jaxrb.fit_data import build_for_data, fit_measured, fitted_scene
 from jaxrb.measured import Trajectories, load_trajectories
-from jaxrb.scenefile import load_scene
 
 
 def _select(trajectories: Trajectories, which: Optional[str]) -> Trajectories:
@@ -33,18 +26,6 @@ def _select(trajectories: Trajectories, which: Optional[str]) -> Trajectories:
     except ValueError:
         raise ValueError(f"--trajectories: expected START:STOP, got {which!r}") from None
     return trajectories.subset(slice(start, stop))
-
-
-def build_for_data(scene_path, trajectories: Trajectories):
-    """(scene file, model, params, state) with k steps per sample interval (module docstring)."""
-    scene_file = load_scene(scene_path)
-    options = dict(scene_file.build_options)
-    step = options.get("dt", trajectories.sample_dt) / options.get("substeps", 1)
-    every = max(1, math.ceil(trajectories.sample_dt / step - 1e-9))
-    options.update(dt=trajectories.sample_dt / every, substeps=1)
-    scene_file.build_options = options
-    model, params, state = scene_file.build()
-    return scene_file, model, params, state
 
 
 def load_data(path, sample_dt: Optional[float], angvel_frame: Optional[str], which: Optional[str]):

@@ -26,8 +26,10 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
+import warnings
 from typing import Callable, Optional, Sequence
 
 import jax
@@ -38,7 +40,7 @@ from jax.flatten_util import ravel_pytree
 from jaxrb import evaluate, least_squares, shooting, sysid
 from jaxrb.evaluate import body_sizes, calibrated
 from jaxrb.measured import Trajectories
-from jaxrb.scenefile import SceneFile, scene_to_dict
+from jaxrb.scenefile import SceneFile, load_scene, scene_to_dict
 from jaxrb.step import make_step
 from jaxrb.types import Model, Params, State
 
@@ -58,16 +60,19 @@ class DataFit:
     Attributes:
         params: the fitted Params.
         fields: the fitted field names.
-        standard_errors: {field: array like the field} robust standard errors
-            of the final values: of the rollout loss's minimum when the
-            rollout search ran (:func:`jaxrb.least_squares.difference_covariance`),
-            else of the last LM stage; ``inf`` where the data do not determine it.
+        standard_errors: {field: array like the field} standard errors of the
+            final values: of the rollout loss's minimum when the rollout search
+            ran (:func:`jaxrb.least_squares.bootstrap_errors`), else the last
+            LM stage's robust ones.
         reliability: {field: array} gradient signal-to-noise where the last
             LM stage started (:func:`jaxrb.least_squares.gradient_reliability`);
             below 2 the trajectories disagree on which way the field should move.
         result: the :class:`~jaxrb.least_squares.LeastSquaresResult`.
         length_scale: the tracker's lengths per true length used.
         seconds: wall time of the fit, compile included.
+        path: one dict per LM iteration and rollout-search round, in order:
+            ``stage`` (e.g. ``"horizon 8"``), ``cost`` (that stage's), and
+            each fitted field's value (flattened).
     """
 
     params: Params
@@ -77,6 +82,7 @@ class DataFit:
     result: least_squares.LeastSquaresResult
     length_scale: float
     seconds: float
+    path: list = dataclasses.field(default_factory=list)
 
     def table(self) -> str:
         """One line per fitted field: value ± standard error, gradient signal-to-noise."""
@@ -96,6 +102,32 @@ class DataFit:
             lines += [f"{'pair friction':>22s}   body {i} on plane {j}: {mixed[i, j]:.4g}"
                       for i in range(mixed.shape[0]) for j in range(mixed.shape[1])]
         return "\n".join(lines)
+
+
+def build_for_data(scene_path, trajectories: Trajectories):
+    """Load a scene file and build it for measured data: k single steps per sample interval.
+
+    ``dt = sample spacing / k`` and ``substeps = 1``, with k the fewest that
+    makes a step no longer than the file's ``dt / substeps`` (a scene written
+    for 1 ms steps keeps steps of at most 1 ms), in float32 unless the file
+    names a dtype; the file's other options stay, and ``scene_file`` keeps
+    them unchanged for :func:`fitted_scene`. A scan of single steps compiles
+    far faster than unrolled substeps (:func:`jaxrb.evaluate.steps_per_sample`).
+
+    Args:
+        scene_path: a ``.json`` scene or MJCF file.
+        trajectories: the data (its ``sample_dt``).
+
+    Returns:
+        (scene file, model, params, state).
+    """
+    scene_file = load_scene(scene_path)
+    options = scene_file.build_options
+    step = options.get("dt", trajectories.sample_dt) / options.get("substeps", 1)
+    every = max(1, math.ceil(trajectories.sample_dt / step - 1e-9))
+    model, params, state = scene_file.build(dt=trajectories.sample_dt / every, substeps=1,
+                                            dtype=options.get("dtype", "float32"))
+    return scene_file, model, params, state
 
 
 def check_fields(fields: Sequence[str]) -> tuple:
@@ -140,12 +172,13 @@ def refine_on_rollouts(loss: Callable, theta, rounds: int = 3, width: float = 0.
         say: progress lines.
 
     Returns:
-        (theta (P,), loss there, resolution: the last round's smallest move in θ units).
+        (theta (P,), loss there, resolution: the last round's smallest move in
+        θ units, path: (θ, loss) after each round).
     """
     batch = jax.jit(jax.vmap(loss))
     theta = np.asarray(theta, np.float64)
     offsets = np.array([0.0, -1.0, -0.5, 0.5, 1.0])
-    best = None
+    best, path = None, []
     for round_ in range(rounds):
         for i in range(theta.size):
             candidates = np.repeat(theta[None], offsets.size, axis=0)
@@ -154,9 +187,10 @@ def refine_on_rollouts(loss: Callable, theta, rounds: int = 3, width: float = 0.
             losses = np.where(np.isfinite(losses), losses, np.inf)
             theta, best = candidates[int(np.argmin(losses))], float(np.min(losses))
         say(f"rollout search round {round_ + 1} (step {width:.3g}): loss {best:.5g}")
+        path.append((theta.copy(), best))
         resolution = 0.5 * width
         width /= 3.0
-    return theta, best, resolution
+    return theta, best, resolution, path
 
 
 def fit_measured(model: Model, params: Params, state: State, trajectories: Trajectories, fields, *,
@@ -205,6 +239,10 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
     fields = check_fields(fields)
     data, scale = calibrated(model, params, trajectories, scale)
     every = evaluate.steps_per_sample(params, trajectories)
+    if model.substeps > 1:
+        warnings.warn(f"fit_measured: the model has {model.substeps} substeps, unrolled in every step: its "
+                      f"Jacobian compiles about 10x slower than {every * model.substeps} single steps a sample "
+                      "(build with dt=sample_dt/k, substeps=1, or use build_for_data)", stacklevel=2)
     step = make_step(model)
     say(f"{trajectories.num_trajectories} trajectories; tracker length scale {scale:.4f} (from free flight)")
     theta0, unravel = ravel_pytree(sysid.to_unconstrained(params, fields))
@@ -218,7 +256,12 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         return ", ".join(f"{name} {np.array2string(np.ravel(np.asarray(getattr(fitted, name))), precision=4)}"
                          for name in fields)
 
-    theta, result = np.asarray(theta0, np.float64), None
+    theta, result, path = np.asarray(theta0, np.float64), None, []
+
+    def record(stage, theta, cost):
+        fitted = to_params(theta)
+        path.append({"stage": stage, "cost": float(cost),
+                     **{name: np.ravel(np.asarray(getattr(fitted, name), np.float64)) for name in fields}})
     for number, horizon in enumerate(horizons):
         if result is not None and left() is not None and left() <= 0:
             say(f"time budget spent: horizon {horizon} skipped")
@@ -240,29 +283,31 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
             residuals, theta, groups, max_iterations=max_iterations, tol=tol, time_budget=left(), progress=say,
             state_path=state_path if last else None, describe=describe)
         theta = result.theta
+        for entry in result.history:
+            record(f"horizon {horizon}", np.asarray(entry[4]), entry[1])
     covariance, start_gradients = result.covariance, result.start_gradients
     if refine_rounds and (left() is None or left() > 0):
         replay = evaluate.prepare_replay(model, params, state, trajectories, scale=scale)
         losses = rollout_losses(replay)
-        theta, _, resolution = refine_on_rollouts(lambda t: jnp.mean(losses(to_params(t))), theta,
-                                                  refine_rounds, say=say)
-        # The values now minimise the rollout loss: their uncertainty is that loss's, by differences,
-        # plus the search's own resolution (a uniform error of ± resolution / 2).
-        say("standard errors of the rollout loss's minimum (differences)…")
-        covariance, _ = least_squares.difference_covariance(
-            jax.jit(jax.vmap(lambda t: losses(to_params(t)))), theta)
-        covariance = covariance + np.eye(theta.size) * resolution ** 2 / 12.0
+        theta, _, resolution, rounds = refine_on_rollouts(lambda t: jnp.mean(losses(to_params(t))), theta,
+                                                          refine_rounds, say=say)
+        for point, loss in rounds:
+            record("rollout search", point, loss)
+        # The values now minimise the rollout loss: their uncertainty is that loss's minimum's, by a
+        # bootstrap over trajectories, plus the search's own resolution (uniform, ± resolution / 2).
+        say("standard errors of the rollout loss's minimum (bootstrap over trajectories)…")
+        errors = least_squares.bootstrap_errors(jax.jit(jax.vmap(lambda t: losses(to_params(t)))), theta)
+        covariance = np.diag(errors ** 2 + resolution ** 2 / 12.0)
     fitted = to_params(theta)
     # Standard errors of the values: the delta method through the transforms.
     values = lambda t: ravel_pytree({name: getattr(to_params(t), name) for name in fields})[0]  # noqa: E731
     slope = np.asarray(jax.jacfwd(values)(jnp.asarray(theta, dtype)), np.float64)  # (V, P)
-    variance = np.einsum("vp,pq,vq->v", slope, np.nan_to_num(covariance, posinf=1e300), slope)
-    value_errors = np.where(np.isinf(np.diag(covariance)) @ (slope.T != 0), np.inf, np.sqrt(np.maximum(variance, 0)))
+    value_errors = np.sqrt(np.maximum(np.einsum("vp,pq,vq->v", slope, covariance, slope), 0.0))
     snr = least_squares.gradient_reliability(start_gradients @ slope.T)  # per value
     _, unravel_values = ravel_pytree({name: np.asarray(getattr(fitted, name), np.float64) for name in fields})
     return DataFit(params=fitted, fields=fields, standard_errors=unravel_values(value_errors),
                    reliability=unravel_values(snr), result=result, length_scale=scale,
-                   seconds=time.perf_counter() - clock)
+                   seconds=time.perf_counter() - clock, path=path)
 
 
 def fitted_scene(scene_file: SceneFile, params: Params, fields) -> dict:

@@ -24,7 +24,7 @@ array              shape           meaning
 ``ids``            (K,) int        optional: each trajectory's own number
 =================  ==============  ===============================================
 
-**state-row layout** (the DAIR Lab cube tosses, ``../shared/data/cube_tosses``):
+**state-row layout** (the DAIR Lab cube tosses, ``examples/cube_tosses``):
 ``states`` (N, 13·n) rows of ``quat, pos, angvel, vel`` per body, ``start``
 (K + 1,) and optionally ``toss_id`` (K,). It carries no sample spacing and no
 frame, so :func:`load_trajectories` needs ``sample_dt=`` and ``angvel_frame=``

@@ -24,6 +24,8 @@ PICTURES = {
     "system_identification": ["system_identification.png"],
     "parameter_sweep": ["parameter_sweep.png"],
     "speed_vs_error": ["speed_vs_error.png"],
+    "cube_tosses": ["cube_tosses_fit.png", "cube_tosses_errors.png", "cube_tosses_trajectories.png",
+                    "cube_tosses.gif"],
     "sysid_bounce": [],
 }
 

@@ -19,8 +19,8 @@ from jaxrb import evaluate, fit_data, least_squares
 from jaxrb.initial_state import _exp, _qmul, estimate_initial_states, free_samples, length_scale
 from jaxrb.measured import load_trajectories, make_trajectories, save_trajectories
 
-CUBE_TOSSES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "cube_tosses",
-                           "cube_tosses.npz")
+EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "cube_tosses")
+CUBE_TOSSES = os.path.join(EXAMPLE, "cube_tosses.npz")
 HALF_WIDTH = 0.0524
 DT = 1 / 148
 
@@ -43,8 +43,6 @@ def ballistic(p0, v0, q0, angvel, count, gravity=(0, 0, -9.81), scale=1.0):
 # --- the file format ---------------------------------------------------------
 
 def test_cube_toss_file_loads_as_it_is():
-    if not os.path.exists(CUBE_TOSSES):
-        pytest.skip("the shared cube-toss data is not beside this checkout")
     data = load_trajectories(CUBE_TOSSES, sample_dt=1 / 148, angvel_frame="body")
     raw = np.load(CUBE_TOSSES)
     assert data.num_trajectories == 400 and data.pos.shape[2:] == (1, 3)
@@ -223,7 +221,7 @@ def test_command_line_fit_and_evaluate(synthetic_tosses, tmp_path, capsys):
     from jaxrb.cli import main
     data = tmp_path / "tosses.npz"
     save_trajectories(data, synthetic_tosses)
-    scene = os.path.join(os.path.dirname(__file__), "..", "examples", "cube_toss.json")
+    scene = os.path.join(EXAMPLE, "cube.json")
     out = tmp_path / "fitted.json"
     assert main(["fit", scene, str(data), "--out", str(out), "--trajectories", "0:4", "--fields", "friction",
                  "--budget", "60"]) == 0
@@ -233,9 +231,8 @@ def test_command_line_fit_and_evaluate(synthetic_tosses, tmp_path, capsys):
     assert main(["evaluate", str(out), str(data), "--trajectories", "0:4", "--plot", str(tmp_path / "e.png")]) == 0
     printed = capsys.readouterr().out
     assert "over 4 trajectories" in printed and (tmp_path / "e.png").exists()
-    if os.path.exists(CUBE_TOSSES):  # the state-row layout needs --sample-dt: a clear error, exit 2
-        assert main(["evaluate", scene, CUBE_TOSSES]) == 2
-        assert "sample_dt" in capsys.readouterr().err
+    assert main(["evaluate", scene, CUBE_TOSSES]) == 2  # the state-row layout needs --sample-dt
+    assert "sample_dt" in capsys.readouterr().err
 
 
 def test_fitted_scene_file_loads_and_keeps_the_fit(synthetic_tosses, tmp_path):
@@ -252,38 +249,29 @@ def test_fitted_scene_file_loads_and_keeps_the_fit(synthetic_tosses, tmp_path):
 
 
 def test_guide_fitting_snippet_runs(capsys, monkeypatch):
-    if not os.path.exists(CUBE_TOSSES):
-        pytest.skip("the shared cube-toss data is not beside this checkout")
     import pathlib
     import re
     root = pathlib.Path(__file__).resolve().parents[1]
     section = (root / "docs" / "guide.md").read_text().split("## 7. Fitting measured motion")[1]
     block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     monkeypatch.chdir(root)
-    namespace = {"DATA": CUBE_TOSSES, "SIZE": 6}
+    namespace = {"SIZE": 6}
     exec(compile(block, "docs/guide.md", "exec"), namespace)  # noqa: S102 - our own docs
     printed = capsys.readouterr().out
     assert "penalty_damping =" in printed and "over 6 trajectories" in printed
     assert namespace["fit"].seconds < 240
 
 
-def test_difference_covariance_of_a_quadratic_is_exact():
-    """Per-group losses ℓ_k = (θ - c_k)ᵀ A (θ - c_k) / 2: the minimiser of their mean is the mean of
-    c_k, with H = A and g_k = A (θ - c_k) / G, so the sandwich is A⁻¹ (Σ g gᵀ) A⁻¹ = Σ (θ - c_k)(θ - c_k)ᵀ / G²;
-    differences of a quadratic are exact. A flat direction has infinite variance."""
+def test_bootstrap_errors_of_a_mean_match_the_standard_error():
+    """Per-group losses ℓ_k = (θ - c_k)²: the minimiser of their mean is the mean of the c_k, whose
+    standard error is std(c)/√G; a coordinate the losses do not depend on runs to the grid's edge."""
     rng = np.random.default_rng(3)
-    centres = rng.normal(size=(40, 2))
-    matrix = np.array([[2.0, 0.5], [0.5, 1.0]])
-    theta = centres.mean(axis=0)
+    centres = rng.normal(size=200)
+    theta = np.array([centres.mean(), 0.0])
 
     def per_group(points):
-        offset = points[:, None, :] - centres[None]
-        return 0.5 * np.einsum("cgp,pq,cgq->cg", offset, matrix, offset)
+        return (points[:, :1] - centres[None]) ** 2 + 0.0 * points[:, 1:]
 
-    covariance, _ = least_squares.difference_covariance(per_group, theta, step=0.1)
-    offset = theta - centres
-    np.testing.assert_allclose(covariance, offset.T @ offset / 40 ** 2, rtol=1e-8)
-    flat = lambda points: per_group(points) * np.array([1.0]) + 0 * points[:, :1]  # noqa: E731
-    matrix[:] = [[2.0, 0.0], [0.0, 0.0]]
-    covariance, _ = least_squares.difference_covariance(flat, theta, step=0.1)
-    assert np.isinf(covariance[1, 1]) and np.isfinite(covariance[0, 0])
+    errors = least_squares.bootstrap_errors(per_group, theta, half_width=0.3, points=9, resamples=2000)
+    assert errors[0] == pytest.approx(centres.std() / np.sqrt(200), rel=0.1)
+    assert np.isinf(errors[1])

@@ -108,7 +108,7 @@ def main(argv=None) -> int:
         "peers": ("the same scenes in each installed peer (pip install -e \".[peers]\"), "
                   "same run, ratios jaxrb / peer and the issue's targets"),
         "real_data": ("400 measured cube tosses, half fitted, half scored; MuJoCo and Bullet with the "
-                      "publishers' parameters (needs ../shared/data/cube_tosses)"),
+                      "publishers' parameters (examples/cube_tosses)"),
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })

@@ -1,9 +1,9 @@
 """Real data: jaxrb fitted to 400 measured cube tosses, scored beside MuJoCo and Bullet.
 
-The data (``../shared/data/cube_tosses``, or the file named by the
+The data (``examples/cube_tosses/cube_tosses.npz``, or the file named by the
 ``JAXRB_CUBE_TOSSES`` environment variable) is split once, seeded, into a
 training half and a validation half. jaxrb's model
-(``examples/cube_toss.json``: penalty contact, spring friction) is fitted on
+(``examples/cube_tosses/cube.json``: penalty contact, spring friction) is fitted on
 the training half with ``jaxrb.fit_data.fit_measured`` (short horizons,
 Levenberg–Marquardt), timed with its compile, and every model is scored on
 the validation half by the published protocol (:mod:`jaxrb.evaluate`). The
@@ -23,8 +23,9 @@ import numpy as np
 from jaxrb.bench.report import markdown_table
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-DEFAULT_DATA = os.path.join(REPO, "..", "shared", "data", "cube_tosses", "cube_tosses.npz")
-SCENE = os.path.join(REPO, "examples", "cube_toss.json")
+FOLDER = os.path.join(REPO, "examples", "cube_tosses")
+DEFAULT_DATA = os.path.join(FOLDER, "cube_tosses.npz")
+SCENE = os.path.join(FOLDER, "cube.json")
 FIELDS = ("friction", "penalty_stiffness", "penalty_damping")
 TARGET = {"position": 14.2, "rotation": 15.7, "fit_seconds": 300.0}
 FULL = dict(train=None, validation=None, starts=4, max_iterations=20, budget=280.0, halves=True)
@@ -46,8 +47,7 @@ def real_data_section(settings: dict, log=print):
     """Run the section; return ``(markdown, results)``."""
     from jaxrb import evaluate
     from jaxrb.bench import toss_peers
-    from jaxrb.data_commands import build_for_data
-    from jaxrb.fit_data import fit_measured
+    from jaxrb.fit_data import build_for_data, fit_measured
     from jaxrb.initial_state import estimate_initial_states
     from jaxrb.measured import load_trajectories
 
@@ -80,8 +80,7 @@ def real_data_section(settings: dict, log=print):
     raw = evaluate.prepare_replay(model, params, state, validation, scale=1.0)
     initial = estimate_initial_states(raw.trajectories, raw.num_free, np.asarray(params.gravity))
     peers = {"Bullet (publishers' fit)": lambda: toss_peers.simulate_bullet(
-                 initial, validation.num_samples, validation.sample_dt, os.path.join(os.path.dirname(path),
-                                                                                     "peer_models")),
+                 initial, validation.num_samples, validation.sample_dt, os.path.join(FOLDER, "peer_models")),
              "MuJoCo (publishers' fit)": lambda: toss_peers.simulate_mujoco(
                  initial, validation.num_samples, validation.sample_dt)}
     missing = []

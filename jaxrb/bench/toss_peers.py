@@ -1,7 +1,7 @@
 """MuJoCo and Bullet on the real cube tosses, with the publishers' fitted parameters.
 
 Acosta et al. (RA-L 2022) fitted each simulator to the DAIR Lab cube tosses;
-their values are in ``../shared/data/cube_tosses/README.md``. Each peer here
+their values are in ``examples/cube_tosses/DATA.md``. Each peer here
 runs every toss from the same free-flight initial state that jaxrb gets
 (estimated from the raw data, as the publishers did: no length calibration),
 10 substeps per 1/148 s sample, and returns poses at the samples, scored by
