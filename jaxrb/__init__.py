@@ -22,11 +22,14 @@ detect_contacts = _jax.jit(_detect, static_argnums=0)
 
 # Modules, not functions: rb.sweep.batch_params, rb.sysid.fit, rb.render.animate, ...
 from jaxrb import analytic, render, scenefile, sweep, sysid  # noqa: E402  (they use the names above)
+# Measured data: rb.measured.load_trajectories, rb.fit_data.fit_measured, rb.evaluate.score.
+from jaxrb import evaluate, fit_data, measured  # noqa: E402
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "COLLIDING", "ContactSet", "SceneFile", "analytic", "load_scene", "render", "save_scene",
+    "COLLIDING", "ContactSet", "SceneFile", "analytic", "evaluate", "fit_data", "load_scene", "measured",
+    "render", "save_scene",
     "scenefile", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
     "Box", "Capsule", "Circle", "Model", "Params", "PointMasses", "Polygon", "Scene", "Sphere",
     "State", "Wrench", "angular_momentum", "jit", "kinetic_energy", "make_step", "point_mass_properties",

@@ -39,7 +39,14 @@ from jaxrb.types import Model, Params, State
 
 
 def body_sizes(model: Model) -> np.ndarray:
-    """(n,) the size of each body that errors are divided by (module docstring)."""
+    """The size of each body that errors are divided by (module docstring).
+
+    Args:
+        model: the scene's Model (its shapes).
+
+    Returns:
+        (n,) sizes in m.
+    """
     sizes = []
     for index, shape in enumerate(model.shapes):
         if isinstance(shape, Box):
@@ -86,6 +93,13 @@ class Replay:
 def steps_per_sample(params: Params, trajectories: Trajectories) -> int:
     """How many steps of ``params.dt`` make one sample interval; a ValueError unless a whole number.
 
+    Args:
+        params: Params (its ``dt``).
+        trajectories: the data (its ``sample_dt``).
+
+    Returns:
+        k, the steps per sample.
+
     Build scenes for measured data with ``dt = sample_dt / k`` and
     ``substeps=1``: the rollout then scans single steps and keeps every k-th,
     which compiles one step instead of k unrolled substeps (a penalty cube's
@@ -101,9 +115,17 @@ def steps_per_sample(params: Params, trajectories: Trajectories) -> int:
 
 
 def calibrated(model: Model, params: Params, trajectories: Trajectories, scale: Optional[float] = None):
-    """(trajectories in true lengths, scale), the scale measured from free flight unless given.
+    """The data in true lengths, the tracker's length scale measured from free flight unless given.
 
     See :func:`jaxrb.initial_state.length_scale`; ``scale=1`` keeps the data as it is.
+
+    Args:
+        model, params: the scene, for its collision detection and gravity.
+        trajectories: the measured data.
+        scale: the scale to use, or None to measure it.
+
+    Returns:
+        (trajectories with positions and velocities divided by the scale, scale).
     """
     steps_per_sample(params, trajectories)
     if scale is None:
@@ -160,7 +182,8 @@ def sample_errors(pos, quat, measured_pos, measured_quat, sizes):
     """Per-sample errors: position in fractions of size and rotation in radians.
 
     Args:
-        pos, measured_pos: (..., n, 3); quat, measured_quat: (..., n, 4).
+        pos, measured_pos: (..., n, 3) simulated and measured positions.
+        quat, measured_quat: (..., n, 4) simulated and measured unit quaternions.
         sizes: (n,) body sizes.
 
     Returns:
@@ -174,8 +197,9 @@ def trajectory_errors(pos, quat, trajectories: Trajectories, sizes) -> tuple:
     """Per-trajectory mean errors of simulated poses against the measurements.
 
     Args:
-        pos: (K, T, n, 3) and quat: (K, T, n, 4) simulated poses, e.g. of
-            :func:`simulate`'s States or of another engine.
+        pos: (K, T, n, 3) simulated positions, e.g. of :func:`simulate`'s
+            States or of another engine.
+        quat: (K, T, n, 4) simulated unit quaternions.
         trajectories: the K measured trajectories (T samples padded).
         sizes: (n,) body sizes.
 
@@ -191,7 +215,14 @@ def trajectory_errors(pos, quat, trajectories: Trajectories, sizes) -> tuple:
 
 
 def error_function(replay: Replay) -> Callable:
-    """``errors(params) -> (position (K,) %, rotation (K,) deg)`` for ``replay``, not yet jitted (vmap it)."""
+    """The protocol's per-trajectory errors as a function of Params, not yet jitted (vmap it).
+
+    Args:
+        replay: from :func:`prepare_replay`.
+
+    Returns:
+        ``errors(params) -> (position (K,) in % of size, rotation (K,) in degrees)``.
+    """
     trajectories, sizes = replay.trajectories, np.asarray(replay.sizes) / replay.length_scale
 
     def errors(params):
@@ -202,7 +233,14 @@ def error_function(replay: Replay) -> Callable:
 
 
 def scorer(replay: Replay) -> Callable:
-    """:func:`error_function` jitted: compiled once, called with any Params of the same structure."""
+    """:func:`error_function` jitted: compiled once, called with any Params of the same structure.
+
+    Args:
+        replay: from :func:`prepare_replay`.
+
+    Returns:
+        The jitted ``errors(params)``.
+    """
     return jit(error_function(replay))
 
 
@@ -221,7 +259,11 @@ class Scores:
     ids: np.ndarray
 
     def summary(self) -> dict:
-        """Mean, std, median and 90th percentile of both errors."""
+        """Mean, std, median and 90th percentile of both errors.
+
+        Returns:
+            ``{"position": {...}, "rotation": {...}}``, each with keys mean, std, median, p90.
+        """
         out = {}
         for name, values in (("position", self.position), ("rotation", self.rotation)):
             out[name] = {"mean": float(np.mean(values)), "std": float(np.std(values)),
@@ -229,19 +271,38 @@ class Scores:
         return out
 
     def text(self) -> str:
-        """One line per error: mean ± std, median, 90th percentile."""
+        """One line per error: mean ± std, median, 90th percentile.
+
+        Returns:
+            Two lines of text.
+        """
         summary = self.summary()
         return "\n".join(f"{name}: {s['mean']:.2f} ± {s['std']:.2f} {unit} (median {s['median']:.2f}, "
                          f"90th percentile {s['p90']:.2f}) over {len(self.ids)} trajectories"
                          for (name, s), unit in zip(summary.items(), ("% of size", "deg")))
 
     def worst(self, count: int = 5) -> np.ndarray:
-        """Ids of the ``count`` trajectories with the largest position error, worst first."""
+        """The trajectories with the largest position error, worst first.
+
+        Args:
+            count: how many.
+
+        Returns:
+            (count,) their ids.
+        """
         return self.ids[np.argsort(-self.position)[:count]]
 
 
 def score(replay: Replay, params: Params) -> Scores:
-    """Protocol errors of ``params`` on the replay's trajectories (compiles once per call)."""
+    """Protocol errors of ``params`` on the replay's trajectories (compiles once per call).
+
+    Args:
+        replay: from :func:`prepare_replay`.
+        params: the model's Params.
+
+    Returns:
+        :class:`Scores`.
+    """
     position, rotation = scorer(replay)(params)
     return Scores(position=np.asarray(position), rotation=np.asarray(rotation), ids=replay.trajectories.ids)
 

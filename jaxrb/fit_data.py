@@ -85,7 +85,11 @@ class DataFit:
     path: list = dataclasses.field(default_factory=list)
 
     def table(self) -> str:
-        """One line per fitted field: value ± standard error, gradient signal-to-noise."""
+        """One line per fitted field: value ± standard error, gradient signal-to-noise.
+
+        Returns:
+            The lines, and each body–plane pair's mixed friction when friction was fitted.
+        """
         lines = []
         for name in self.fields:
             value = np.ravel(np.asarray(getattr(self.params, name)))
@@ -131,7 +135,14 @@ def build_for_data(scene_path, trajectories: Trajectories):
 
 
 def check_fields(fields: Sequence[str]) -> tuple:
-    """The fields as a tuple, each one a scene file can hold (:data:`FITTABLE`)."""
+    """Check that a scene file can hold each field.
+
+    Args:
+        fields: a Params field name or names.
+
+    Returns:
+        The names as a tuple; a ValueError for one not in :data:`FITTABLE`.
+    """
     fields = (fields,) if isinstance(fields, str) else tuple(fields)
     for name in fields:
         if name not in FITTABLE:
@@ -143,8 +154,16 @@ def check_fields(fields: Sequence[str]) -> tuple:
 
 
 def rollout_losses(replay: evaluate.Replay) -> Callable:
-    """``losses(params) -> (K,)``: each trajectory's protocol position error (fraction of size) plus
-    its rotation error weighed like it (:data:`jaxrb.shooting.ROTATION_WEIGHT`: 10° counts as 10 %)."""
+    """Each trajectory's rollout loss as a function of Params.
+
+    Args:
+        replay: from :func:`jaxrb.evaluate.prepare_replay`.
+
+    Returns:
+        ``losses(params) -> (K,)``: each trajectory's protocol position error
+        (fraction of size) plus its rotation error weighed like it
+        (:data:`jaxrb.shooting.ROTATION_WEIGHT`: 10° counts as 10 %).
+    """
     errors = evaluate.error_function(replay)
 
     def losses(params):

@@ -78,6 +78,7 @@ class Trajectories:
 
     @property
     def num_trajectories(self) -> int:
+        """K, the number of trajectories."""
         return int(self.pos.shape[0])
 
     @property
@@ -91,7 +92,14 @@ class Trajectories:
         return np.arange(self.num_samples)[None, :] < self.length[:, None]
 
     def subset(self, index) -> "Trajectories":
-        """The trajectories at ``index`` (indices or a boolean mask), padded to their own longest."""
+        """Some of the trajectories, padded to their own longest.
+
+        Args:
+            index: indices, a slice or a (K,) boolean mask.
+
+        Returns:
+            :class:`Trajectories`.
+        """
         index = np.arange(self.num_trajectories)[index]
         if index.size == 0:
             raise ValueError(f"{self.source}: subset: no trajectories selected")
@@ -101,7 +109,14 @@ class Trajectories:
                                    angvel=cut(self.angvel), length=self.length[index], ids=self.ids[index])
 
     def scaled(self, factor: float) -> "Trajectories":
-        """The same trajectories with positions and velocities multiplied by ``factor`` (a length unit change)."""
+        """The same trajectories in another length unit.
+
+        Args:
+            factor: what positions and velocities are multiplied by.
+
+        Returns:
+            :class:`Trajectories`.
+        """
         return dataclasses.replace(self, pos=self.pos * factor, vel=None if self.vel is None else self.vel * factor)
 
     def split(self, fraction: float = 0.5, seed: int = 0):
