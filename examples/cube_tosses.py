@@ -110,5 +110,5 @@ quat = np.stack([np.asarray(simulated.quat[k, :count, 0]), validation.quat[k, :c
 frames = rb.State(pos=pos, quat=quat, vel=np.zeros_like(pos), angvel=np.zeros_like(pos), angle=None,
                   time=np.arange(count) * validation.sample_dt)
 animation = rb.render.animate(pair_model, pair_params, frames, every=2, fps=37,  # half speed
-                              title="simulated, and real 0.3 m beside it, at half speed;")
+                              title="simulated (blue), real (orange), half speed;")
 rb.render.save_animation(animation, os.path.join(OUT, "cube_tosses.gif"))

@@ -27,7 +27,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxrb.collision.pairs import bounding_radius
 from jaxrb.compile import jit
 from jaxrb.initial_state import (CLEARANCE, _exp, _qmul, estimate_initial_states, free_flight_residuals, free_samples,
                                  initial_states, length_scale)

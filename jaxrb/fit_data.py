@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 import warnings
 from typing import Callable, Optional, Sequence
@@ -281,6 +280,7 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         fitted = to_params(theta)
         path.append({"stage": stage, "cost": float(cost),
                      **{name: np.ravel(np.asarray(getattr(fitted, name), np.float64)) for name in fields}})
+
     for number, horizon in enumerate(horizons):
         if result is not None and left() is not None and left() <= 0:
             say(f"time budget spent: horizon {horizon} skipped")
