@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.compile import jit
-from jaxrb.initial_state import (CLEARANCE, _exp, _qmul, estimate_initial_states, free_flight_residuals, free_samples,
+from jaxrb.initial_state import (CLEARANCE, quat_exp, quat_multiply, estimate_initial_states, free_flight_residuals, free_samples,
                                  initial_states, length_scale)
 from jaxrb.measured import Trajectories
 from jaxrb.shapes import Box, Capsule, Sphere
@@ -343,7 +343,7 @@ def noise_floor(replay: Replay, params: Params, draws: int = 4, seed: int = 0) -
     for _ in range(draws):
         noisy = dataclasses.replace(
             data, pos=data.pos + rng.normal(0.0, position_noise, data.pos.shape),
-            quat=_qmul(_exp(rng.normal(0.0, rotation_noise / np.sqrt(3.0), data.pos.shape)), data.quat))
+            quat=quat_multiply(quat_exp(rng.normal(0.0, rotation_noise / np.sqrt(3.0), data.pos.shape)), data.quat))
         result = spread(initial_states(template, estimate_initial_states(noisy, replay.num_free, gravity)))
         position.append(np.asarray(result[0]))
         rotation.append(np.asarray(result[1]))

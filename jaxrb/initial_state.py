@@ -37,18 +37,22 @@ CLEARANCE = 0.005
 MIN_FREE_SAMPLES = 2
 
 
-def _qmul(a, b):
+# Host-side (NumPy) quaternion helpers, (w, x, y, z); jaxrb.quaternion has the traced ones.
+
+def quat_multiply(a, b):
+    """Hamilton product a ⊗ b of (..., 4) quaternions."""
     aw, av = a[..., :1], a[..., 1:]
     bw, bv = b[..., :1], b[..., 1:]
     return np.concatenate([aw * bw - np.sum(av * bv, -1, keepdims=True),
                            aw * bv + bw * av + np.cross(av, bv)], axis=-1)
 
 
-def _conj(q):
+def quat_conjugate(q):
+    """The conjugate (the inverse of a unit quaternion), (..., 4)."""
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def _rotvec(q):
+def quat_log(q):
     """Rotation vector (..., 3) of unit quaternions (..., 4), the short way round."""
     q = np.where(q[..., :1] < 0, -q, q)
     sine = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
@@ -57,7 +61,7 @@ def _rotvec(q):
     return q[..., 1:] * scale
 
 
-def _exp(rotvec):
+def quat_exp(rotvec):
     """Unit quaternion (..., 4) of rotation vectors (..., 3)."""
     angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
     half = 0.5 * angle
@@ -124,9 +128,9 @@ def estimate_initial_states(trajectories: Trajectories, num_free: np.ndarray, gr
         out["pos"][k] = coef[0].reshape(-1, 3)
         out["vel"][k] = coef[1].reshape(-1, 3)
         quat = trajectories.quat[k, :count]  # (F, n, 4)
-        steps = _rotvec(_qmul(quat[1:], _conj(quat[:-1])))  # (F-1, n, 3) world-frame rotation per sample
+        steps = quat_log(quat_multiply(quat[1:], quat_conjugate(quat[:-1])))  # (F-1, n, 3) world-frame rotation per sample
         angvel = steps.mean(axis=0) / dt
-        back = _qmul(_exp(-angvel[None] * time[:, None, None]), quat)  # each sample carried to t = 0
+        back = quat_multiply(quat_exp(-angvel[None] * time[:, None, None]), quat)  # each sample carried to t = 0
         back = np.where(np.sum(back * back[:1], -1, keepdims=True) < 0, -back, back)
         mean = back.mean(axis=0)
         out["quat"][k] = mean / np.linalg.norm(mean, axis=-1, keepdims=True)
@@ -152,9 +156,9 @@ def free_flight_residuals(trajectories: Trajectories, num_free: np.ndarray, esti
         time = np.arange(int(count)) * trajectories.sample_dt
         pos = (estimate["pos"][k] + estimate["vel"][k] * time[:, None, None]
                + 0.5 * gravity * time[:, None, None] ** 2)
-        quat = _qmul(_exp(estimate["angvel"][k] * time[:, None, None]), estimate["quat"][k])
+        quat = quat_multiply(quat_exp(estimate["angvel"][k] * time[:, None, None]), estimate["quat"][k])
         position.append(np.sqrt(np.mean((pos - trajectories.pos[k, :count]) ** 2)))
-        angle = np.linalg.norm(_rotvec(_qmul(quat, _conj(trajectories.quat[k, :count]))), axis=-1)
+        angle = np.linalg.norm(quat_log(quat_multiply(quat, quat_conjugate(trajectories.quat[k, :count]))), axis=-1)
         rotation.append(np.sqrt(np.mean(angle ** 2)))
     return np.array(position), np.array(rotation)
 

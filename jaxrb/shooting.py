@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxrb.initial_state import _conj, _qmul, _rotvec
+from jaxrb.initial_state import quat_conjugate, quat_multiply, quat_log
 from jaxrb.measured import Trajectories
 from jaxrb.step import rollout
 from jaxrb.types import State
@@ -64,7 +64,7 @@ def measured_velocities(trajectories: Trajectories):
     dt = trajectories.sample_dt
     pos, quat = trajectories.pos, trajectories.quat
     vel = np.gradient(pos, dt, axis=1)
-    step = _rotvec(_qmul(quat[:, 1:], _conj(quat[:, :-1]))) / dt  # (K, T-1, n, 3) between samples
+    step = quat_log(quat_multiply(quat[:, 1:], quat_conjugate(quat[:, :-1]))) / dt  # (K, T-1, n, 3) between samples
     angvel = np.concatenate([step[:, :1], 0.5 * (step[:, 1:] + step[:, :-1]), step[:, -1:]], axis=1)
     return vel, angvel
 

@@ -16,7 +16,7 @@ import pytest
 
 import jaxrb as rb
 from jaxrb import evaluate, fit_data, least_squares
-from jaxrb.initial_state import _exp, _qmul, estimate_initial_states, free_samples, length_scale
+from jaxrb.initial_state import quat_exp, quat_multiply, estimate_initial_states, free_samples, length_scale
 from jaxrb.measured import load_trajectories, make_trajectories, save_trajectories
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "cube_tosses")
@@ -36,7 +36,7 @@ def cube_scene(friction=0.25, restitution=0.1, substeps=4):
 def ballistic(p0, v0, q0, angvel, count, gravity=(0, 0, -9.81), scale=1.0):
     time = np.arange(count) * DT
     pos = scale * (p0 + v0 * time[:, None] + 0.5 * np.asarray(gravity) * time[:, None] ** 2)
-    quat = _qmul(_exp(angvel[None] * time[:, None]), np.broadcast_to(q0, (count, 4)))
+    quat = quat_multiply(quat_exp(angvel[None] * time[:, None]), np.broadcast_to(q0, (count, 4)))
     return {"pos": pos[:, None], "quat": quat[:, None]}
 
 
@@ -195,7 +195,7 @@ def synthetic_tosses():
     states = evaluate.simulate(rb.make_step(model), params, initial, 60, every=4)
     noise_angle = rng.normal(0, np.radians(0.05), states.quat.shape[:-1] + (3,))
     pieces = [{"pos": np.asarray(states.pos[k]) + rng.normal(0, 1e-4, states.pos.shape[1:]),
-               "quat": _qmul(_exp(noise_angle[k]), np.asarray(states.quat[k]))} for k in range(12)]
+               "quat": quat_multiply(quat_exp(noise_angle[k]), np.asarray(states.quat[k]))} for k in range(12)]
     return make_trajectories(pieces, DT, source="synthetic")
 
 
@@ -288,7 +288,7 @@ def test_mujoco_peer_spins_in_the_world_frame_and_rests_on_the_table():
     spin = {"pos": np.array([[[0.0, 0.0, 100.0]]]), "vel": np.zeros((1, 1, 3)), "angvel": angvel[None, None],
             "quat": q0[None, None]}
     _, quat = toss_peers.simulate_mujoco(spin, 5, DT)
-    expected = _qmul(_exp(angvel * 4 * DT), q0)
+    expected = quat_multiply(quat_exp(angvel * 4 * DT), q0)
     assert min(np.abs(quat[0, 4, 0] - expected).max(), np.abs(quat[0, 4, 0] + expected).max()) < 1e-6
     drop = dict(spin, pos=np.array([[[0.0, 0.0, 0.1]]]), angvel=np.zeros((1, 1, 3)),
                 quat=np.array([[[1.0, 0, 0, 0]]]))
