@@ -49,7 +49,9 @@ PLANE_FIELDS = {"plane_friction": "friction", "plane_restitution": "restitution"
 BUILD_FIELDS = ("contact_margin", "bounce_threshold", "contact_hertz", "contact_damping_ratio",
                 "max_push_velocity", "penalty_stiffness", "penalty_damping", "penalty_width",
                 "friction_velocity", "impulse_smoothing")
-FITTABLE = BODY_FIELDS + tuple(PLANE_FIELDS) + BUILD_FIELDS + ("inertia",)
+#: Shape-dict entries that are lengths (multiplied by a fitted shape_scale when written).
+SHAPE_LENGTHS = ("radius", "half_length", "half_extents", "vertices")
+FITTABLE = BODY_FIELDS + tuple(PLANE_FIELDS) + BUILD_FIELDS + ("inertia", "shape_scale")
 
 
 @dataclasses.dataclass
@@ -343,7 +345,17 @@ def fitted_scene(scene_file: SceneFile, params: Params, fields) -> dict:
     data = scene_to_dict(scene_file.scene, **scene_file.build_options)
     for name in check_fields(fields):
         value = np.asarray(getattr(params, name), np.float64)
-        if name in BODY_FIELDS or name == "inertia":
+        if name == "shape_scale":
+            # Sizes change, mass properties do not: they are written as the Params hold them.
+            for index, (body, scale) in enumerate(zip(data["bodies"], value)):
+                if body["shape"]["kind"] == "point_masses":
+                    raise ValueError(f"fitted_scene: body {index}: a scaled point-mass body cannot be written "
+                                     "(its points also place its centre of mass)")
+                body["shape"] = {key: (np.asarray(item) * scale).tolist() if key in SHAPE_LENGTHS else item
+                                 for key, item in body["shape"].items()}
+                body["mass"] = float(params.mass[index])
+                body["inertia"] = np.asarray(params.inertia[index], np.float64).tolist()
+        elif name in BODY_FIELDS or name == "inertia":
             for body, item in zip(data["bodies"], value):
                 body[name] = item.tolist()
             if name == "mass":  # a mass alone would rescale the shape's inertia: keep the inertia as fitted

@@ -304,10 +304,12 @@ class PlanePenalty:
             else:
                 damping = jnp.broadcast_to(params.penalty_damping, mass.shape)
             groups.append(dict(
-                local=tuple(jnp.asarray(points, dtype) - take(part) for points, part in zip(group.points, com)),
+                local=tuple(jnp.asarray(points, dtype) * take(params.shape_scale) - take(part)
+                            for points, part in zip(group.points, com)),
                 inv_mass=1.0 / mass, inv_inertia=tuple(tuple(map(take, row)) for row in inv_inertia),
                 friction=mix_friction(take(params.friction), params.plane_friction[group.planes][:, None]),
-                damping=damping, offset=jnp.asarray(group.offset, dtype), radius=jnp.asarray(group.radius, dtype)))
+                damping=damping, offset=jnp.asarray(group.offset, dtype),
+                radius=jnp.asarray(group.radius, dtype) * take(params.shape_scale)))
         return dict(inv_mass=1.0 / params.mass, inertia=vec.matrix_parts(params.inertia),
                     inv_inertia=inv_inertia, groups=tuple(groups))
 

@@ -207,7 +207,8 @@ def _group_adjoint(model, params, group, data, rec, angvel, predicted_angvel, h,
         rotation=_add_parts(_outer(g_arm0, local), _outer(arm_cross, g_body_cross)),
         local=vec.matvec_transposed(rotation, g_arm0), inv_mass=g_den,
         inv_inertia=tuple(vec.mul(g_den, entry) for entry in _outer(body_cross, body_cross)),
-        friction=g_friction, damping=g_d0, stiffness=g_stiffness, h=g_h, width=g_width)
+        friction=g_friction, damping=g_d0, stiffness=g_stiffness, h=g_h, width=g_width,
+        radius=-(g_dist + g_shift))
     return rows, g_held_in
 
 
@@ -367,7 +368,7 @@ def _prepared_cotangent(prepared, body, rows):
             inv_inertia=vec.matrix_rows(tuple(jnp.broadcast_to(pair_sum(g), data["inv_mass"].shape)
                                        for g in group_rows["inv_inertia"])),
             friction=pair_sum(group_rows["friction"]), damping=pair_sum(group_rows["damping"]),
-            offset=jnp.zeros_like(data["offset"]), radius=jnp.zeros_like(data["radius"])))
+            offset=jnp.zeros_like(data["offset"]), radius=pair_sum(group_rows["radius"])))
     return dict(inv_mass=body["inv_mass"], inertia=vec.matrix_rows(body["inertia"]),
                 inv_inertia=vec.matrix_rows(body["inv_inertia"]), groups=tuple(groups))
 

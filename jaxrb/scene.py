@@ -480,6 +480,7 @@ class Scene:
             torque=jnp.zeros((num, 3) if dim == 3 else (num,), dtype=dtype),
             plane_friction=jnp.asarray([p.friction for p in self._planes], dtype=dtype),
             plane_restitution=jnp.asarray([p.restitution for p in self._planes], dtype=dtype),
+            shape_scale=jnp.ones((num,), dtype=dtype),
             **{name: jnp.asarray(value, dtype=dtype) for name, value in scalars.items()})
         slots = model.num_contacts
         state = State(

@@ -369,7 +369,7 @@ DEFAULT_TRANSFORMS = {
     "linear_damping": "log", "angular_damping": "log", "contact_margin": "log",
     "bounce_threshold": "log", "contact_hertz": "log", "contact_damping_ratio": "log",
     "max_push_velocity": "log", "penalty_stiffness": "log", "penalty_damping": "log",
-    "penalty_width": "log", "friction_velocity": "log", "dt": "log",
+    "penalty_width": "log", "friction_velocity": "log", "dt": "log", "shape_scale": "log",
 }
 
 

@@ -183,6 +183,12 @@ class Params:
             (m_n: the contact's normal effective mass). 0 (the default) is the
             exact clamp; larger values trade bias (contacts push slightly
             before they touch) for gradients that see contacts coming.
+        shape_scale: (n,) length scale of each body's collision shape about
+            the shape's own origin (1: as built): radii, half-extents,
+            vertices and points are multiplied by it in collision, so a size
+            can be fitted (e.g. a tracker's length error). Mass, inertia and
+            centre of mass are fields of their own and do not follow it;
+            ``jaxrb.render`` draws the shapes as built.
         inv_inertia: derived, not a parameter: None, or ``inertia``'s inverse
             ((n, 3, 3) in 3D, (n,) in 2D) for the stages to use instead of
             inverting ``inertia`` each step. :func:`jaxrb.rollout` fills it
@@ -215,6 +221,7 @@ class Params:
     penalty_width: Array
     friction_velocity: Array
     impulse_smoothing: Array
+    shape_scale: Array
     inv_inertia: Optional[Array] = None
 
 

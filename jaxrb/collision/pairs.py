@@ -391,9 +391,14 @@ def row_summer(model: Model, body_a, body_b):
     return lambda values, side: sum_rows(values, pieces[side], model.num_bodies, body_b if side else body_a)
 
 
-def _stack_geometry(model, bodies, dtype):
+def _stack_geometry(model, bodies, dtype, scale):
+    """The bodies' geometry arrays stacked, lengths times ``scale`` (P,) (a polygon's normals kept)."""
+    kind, _ = geometry(model.shapes[bodies[0]], model.dim)
     arrays = [geometry(model.shapes[b], model.dim)[1] for b in bodies]
-    return tuple(jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0])))
+    stacked = [jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0]))]
+    lengths = stacked[:1] if kind == "polygon" else stacked
+    scaled = [part * scale.reshape(scale.shape + (1,) * (part.ndim - 1)) for part in lengths]
+    return tuple(scaled + stacked[len(scaled):])
 
 
 def mix_friction(mu_a, mu_b):
@@ -420,7 +425,8 @@ def _near_pairs(model: Model, params: Params, state: State, origin, group: PairG
     sides = []
     for bodies in (group.body_a, group.body_b):
         rows = np.unique(bodies)
-        radius = jnp.asarray([bounding_radius(*geometry(model.shapes[b], model.dim)) for b in rows], dtype=dtype)
+        radius = (jnp.asarray([bounding_radius(*geometry(model.shapes[b], model.dim)) for b in rows], dtype=dtype)
+                  * params.shape_scale[np.asarray(rows)])
         sides.append((rows, *body_rows(rows, origin, state.vel), radius))
     (rows_a, origin_a, vel_a, radius_a), (rows_b, origin_b, vel_b, radius_b) = sides
 
@@ -497,13 +503,13 @@ def detect(model: Model, params: Params, state: State) -> ContactSet:
     for group in model.pair_groups:
         body_a = jnp.asarray(group.body_a, dtype=jnp.int32)
         body_b = jnp.asarray(group.body_b, dtype=jnp.int32)
-        geom_a = _stack_geometry(model, group.body_a, dtype)
+        geom_a = _stack_geometry(model, group.body_a, dtype, params.shape_scale[np.asarray(group.body_a)])
         if group.b_is_plane:
             normals = np.asarray([model.planes[p][0] for p in group.body_b], dtype=np.float64)
             offsets = np.asarray([model.planes[p][1] for p in group.body_b], dtype=np.float64)
             geom_b = (jnp.asarray(normals, dtype=dtype), jnp.asarray(offsets, dtype=dtype))
         else:
-            geom_b = _stack_geometry(model, group.body_b, dtype)
+            geom_b = _stack_geometry(model, group.body_b, dtype, params.shape_scale[np.asarray(group.body_b)])
         pair_ids = jnp.arange(len(group.body_a), dtype=jnp.int32)
         in_use = jnp.ones((len(group.body_a),), dtype=bool)
         picked = group.capacity < len(group.body_a)
