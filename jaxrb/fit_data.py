@@ -231,7 +231,10 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         model, params, state: from ``Scene.build(dt=trajectories.sample_dt / k, ...)``;
             ``params`` holds the starting values.
         trajectories: K measured trajectories of the scene's bodies.
-        fields: Params field names to fit (:data:`FITTABLE`).
+        fields: Params field names to fit (:data:`FITTABLE`). A restitution
+            that starts at 0 or 1 is fitted on the closed interval (the
+            ``"clip"`` transform of :mod:`jaxrb.sysid`), others with the
+            module's default transforms.
         horizons: samples predicted from each measured start, one LM stage each.
         stride: samples between starts.
         starts: candidate starting points (the given one and ``starts − 1``
@@ -265,11 +268,15 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
                       "(build with dt=sample_dt/k, substeps=1, or use build_for_data)", stacklevel=2)
     step = make_step(model)
     say(f"{trajectories.num_trajectories} trajectories; tracker length scale {scale:.4f} (from free flight)")
-    theta0, unravel = ravel_pytree(sysid.to_unconstrained(params, fields))
+    # A coefficient in [0, 1] that starts at a bound (restitution 0, the default) is fitted on the
+    # closed interval: the sigmoid cannot start there.
+    transforms = {name: "clip" for name in fields if sysid.DEFAULT_TRANSFORMS.get(name) == "sigmoid"
+                  and np.any((np.asarray(getattr(params, name)) <= 0) | (np.asarray(getattr(params, name)) >= 1))}
+    theta0, unravel = ravel_pytree(sysid.to_unconstrained(params, fields, transforms))
     dtype = theta0.dtype
 
     def to_params(theta):
-        return sysid.from_unconstrained(unravel(jnp.asarray(theta, dtype)), params, fields)
+        return sysid.from_unconstrained(unravel(jnp.asarray(theta, dtype)), params, fields, transforms)
 
     def describe(theta):
         fitted = to_params(theta)

@@ -32,6 +32,10 @@ Parameter transforms (the default for each field is in :data:`DEFAULT_TRANSFORMS
     primitives' frames): C = diag(exp(u)), three numbers per body, the same
     guarantees. Fewer unknowns when the axes are known.
 ``"identity"``: value = u (gravity, forces, centre-of-mass offsets).
+``"clip"``: value = clip(u, 0, 1), the closed interval: a restitution that
+    starts at 0 or may end there (the sigmoid only approaches 0). Flat outside
+    [0, 1], and at a bound JAX's gradient is half the slope inside, so a
+    gradient method can leave 0 but is not pushed back into the interval.
 
 Early stopping (off by default): with ``tol`` set, :func:`fit` stops when the
 best loss of the last ``patience`` iterations is less than a fraction ``tol``
@@ -273,6 +277,16 @@ def _check_open(name, low=None, high=None):
     return check
 
 
+def _check_closed(name, low, high):
+    """Wrap an inverse so values outside [low, high] raise a ValueError naming the field."""
+    def check(field, value):
+        array = np.asarray(value)
+        if np.any(array < low) or np.any(array > high):
+            raise ValueError(f"sysid: field {field!r} has values {array.tolist()} outside [{low}, {high}], "
+                             f"the range of its {name!r} transform")
+    return check
+
+
 def _second_moment_forward(u):
     """(n, 6) -> (n, 3, 3): L lower-triangular (log diagonal), C = L Lᵀ, I = tr(C)·Id − C."""
     zero = jnp.zeros_like(u[..., 0])
@@ -354,6 +368,8 @@ TRANSFORMS = {
     "log": (Transform(jnp.exp, lambda v: np.log(np.asarray(v, dtype=np.float64)), "log"),
             _check_open("log", low=0.0)),
     "softplus": (Transform(jax.nn.softplus, _softplus_inverse, "softplus"), _check_open("softplus", low=0.0)),
+    "clip": (Transform(lambda u: jnp.clip(u, 0.0, 1.0), lambda v: np.asarray(v, dtype=np.float64), "clip"),
+             _check_closed("clip", 0.0, 1.0)),
     "sigmoid": (Transform(jax.nn.sigmoid, lambda v: np.log(np.asarray(v, np.float64))
                           - np.log1p(-np.asarray(v, np.float64)), "sigmoid"),
                 _check_open("sigmoid", low=0.0, high=1.0)),
