@@ -37,7 +37,8 @@ CLEARANCE = 0.005
 MIN_FREE_SAMPLES = 2
 
 
-# Host-side (NumPy) quaternion helpers, (w, x, y, z); jaxrb.quaternion has the traced ones.
+# Host-side quaternion helpers, (w, x, y, z), in NumPy's float64 whatever JAX's precision (the
+# estimate works on raw measurements before anything is traced); jaxrb.quaternion has the traced ones.
 
 def quat_multiply(a, b):
     """Hamilton product a ⊗ b of (..., 4) quaternions."""

@@ -265,25 +265,21 @@ class Transform(NamedTuple):
     name: str
 
 
-def _check_open(name, low=None, high=None):
-    """Wrap an inverse so values outside its open domain raise a ValueError naming the field."""
+def _check_open(name, low=None, high=None, closed=False):
+    """Wrap an inverse so values outside its domain raise a ValueError naming the field.
+
+    The domain is the open interval (low, high), or with ``closed`` [low, high].
+    """
     def check(field, value):
         array = np.asarray(value)
-        if (low is not None and np.any(array <= low)) or (high is not None and np.any(array >= high)):
-            bounds = f"({low if low is not None else '-inf'}, {high if high is not None else 'inf'})"
-            raise ValueError(f"sysid: field {field!r} has values {array.tolist()} outside the open "
-                             f"interval {bounds} of its {name!r} transform; start the fit from a "
-                             f"value inside it")
-    return check
-
-
-def _check_closed(name, low, high):
-    """Wrap an inverse so values outside [low, high] raise a ValueError naming the field."""
-    def check(field, value):
-        array = np.asarray(value)
-        if np.any(array < low) or np.any(array > high):
-            raise ValueError(f"sysid: field {field!r} has values {array.tolist()} outside [{low}, {high}], "
-                             f"the range of its {name!r} transform")
+        below = low is not None and np.any(array < low if closed else array <= low)
+        above = high is not None and np.any(array > high if closed else array >= high)
+        if below or above:
+            left, right = ("[", "]") if closed else ("(", ")")
+            bounds = f"{left}{low if low is not None else '-inf'}, {high if high is not None else 'inf'}{right}"
+            raise ValueError(f"sysid: field {field!r} has values {array.tolist()} outside the "
+                             f"{'closed' if closed else 'open'} interval {bounds} of its {name!r} transform; "
+                             f"start the fit from a value inside it")
     return check
 
 
@@ -369,7 +365,7 @@ TRANSFORMS = {
             _check_open("log", low=0.0)),
     "softplus": (Transform(jax.nn.softplus, _softplus_inverse, "softplus"), _check_open("softplus", low=0.0)),
     "clip": (Transform(lambda u: jnp.clip(u, 0.0, 1.0), lambda v: np.asarray(v, dtype=np.float64), "clip"),
-             _check_closed("clip", 0.0, 1.0)),
+             _check_open("clip", low=0.0, high=1.0, closed=True)),
     "sigmoid": (Transform(jax.nn.sigmoid, lambda v: np.log(np.asarray(v, np.float64))
                           - np.log1p(-np.asarray(v, np.float64)), "sigmoid"),
                 _check_open("sigmoid", low=0.0, high=1.0)),

@@ -393,8 +393,8 @@ def row_summer(model: Model, body_a, body_b):
 
 def _stack_geometry(model, bodies, dtype, scale):
     """The bodies' geometry arrays stacked, lengths times ``scale`` (P,) (a polygon's normals kept)."""
-    kind, _ = geometry(model.shapes[bodies[0]], model.dim)
-    arrays = [geometry(model.shapes[b], model.dim)[1] for b in bodies]
+    found = [geometry(model.shapes[b], model.dim) for b in bodies]
+    kind, arrays = found[0][0], [parts for _, parts in found]
     stacked = [jnp.asarray(np.stack([a[i] for a in arrays]), dtype=dtype) for i in range(len(arrays[0]))]
     lengths = stacked[:1] if kind == "polygon" else stacked
     scaled = [part * scale.reshape(scale.shape + (1,) * (part.ndim - 1)) for part in lengths]
