@@ -299,7 +299,8 @@ class PlanePenalty:
             mass = take(params.mass)
             if model.penalty_damping_from_restitution:
                 restitution = jnp.maximum(take(params.restitution), params.plane_restitution[group.planes][:, None])
-                damping = (2.0 * damping_ratio_from_restitution(restitution)
+                omega_h = params.dt / model.substeps * jnp.sqrt(params.penalty_stiffness / mass)
+                damping = (2.0 * damping_ratio_from_restitution(restitution, omega_h)
                            * jnp.sqrt(params.penalty_stiffness * mass))
             else:
                 damping = jnp.broadcast_to(params.penalty_damping, mass.shape)

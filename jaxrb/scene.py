@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from typing import Optional
 
 import jax
@@ -35,6 +36,15 @@ DEFAULT_DENSITY = 1000.0
 ALL_BITS = 0xFFFFFFFF
 # Above this many body–body pairs the default broadphase is "spheres".
 ALL_PAIRS_LIMIT = 64
+#: Longest default substep (s) of impulse contact (see ``Scene.build``'s ``substeps``).
+IMPULSE_SUBSTEP = 1.0 / 480.0
+
+
+def default_substeps(dt: float, contact: str) -> int:
+    """Substeps ``Scene.build`` takes when none are given: see its ``substeps`` argument."""
+    if contact != "impulse":
+        return 1
+    return max(1, math.ceil(dt / IMPULSE_SUBSTEP - 1e-9))
 
 
 @dataclasses.dataclass
@@ -313,7 +323,7 @@ class Scene:
         return len(self._planes) - 1
 
     def build(self, dt: float, integrator: str = "semi_implicit", orientation: Optional[str] = None,
-              contact: Optional[str] = None, substeps: int = 1, dtype=None, *,
+              contact: Optional[str] = None, substeps: Optional[int] = None, dtype=None, *,
               solver: str = "sequential", iterations: int = 4, relax_iterations: int = 1,
               broadphase: Optional[str] = None, broadphase_capacity: Optional[int] = None,
               contact_margin: float = 0.01, bounce_threshold: float = 0.5,
@@ -336,7 +346,16 @@ class Scene:
                 ``implicit_gyro``); the default is ``"impulse"`` when any pair
                 can touch and the integrator is one of those, else ``"none"``
                 (so ``euler`` and ``rk4`` scenes are free-body scenes).
-            substeps: integration substeps per ``step`` call, >= 1.
+            substeps: integration substeps per ``step`` call, >= 1. Default:
+                for impulse contact the fewest that keep the substep at or
+                below :data:`IMPULSE_SUBSTEP` (1/480 s): 8 at dt = 1/60 s, 1 at
+                dt = 2 ms; otherwise 1. Why 1/480 s: a soft contact's spring
+                (``contact_hertz``, a quarter of the substep rate) sets how far
+                a stack sinks. Measured at dt = 1/60 s over 10 s (0.2 m boxes,
+                μ = 0.5, each set off sideways by up to 1 mm), with 4 substeps
+                a 10-box column sinks 6.9 mm and a 50 kg box on a 1 kg box
+                7.0 mm; with 8 they sink 1.7 and 1.8 mm, drift 0.11 and
+                0.17 mm, and the 55-box 2D pyramid's top sinks 0.6 mm.
             dtype: floating dtype of Params and State; default JAX's default float
                 (float64 when x64 is enabled, else float32).
             solver: impulse iteration scheme: ``"sequential"`` (Gauss–Seidel over
@@ -365,7 +384,7 @@ class Scene:
                 instead: k = m ω², c = 2ζ m ω with m the mean body mass. Without
                 any, the frequency is 0.03/h (h = dt/substeps; stable for
                 symplectic Euler with up to ~8 contacts on a body) and damping comes from each contact's
-                restitution, ζ = −ln e / √(π² + ln² e).
+                restitution (the clamped spring-damper's inverse, jaxrb.contact.penalty).
             penalty_width: softplus width (m); giving it turns on the smooth
                 activation.
             penalty_friction: ``"spring"`` (stick–slip, holds a load below the
@@ -397,7 +416,8 @@ class Scene:
                                    ORIENTATIONS)
         check_option("solver", solver, SOLVERS)
         check_option("penalty_friction", penalty_friction, PENALTY_FRICTIONS)
-        for field, value, low in (("substeps", substeps, 1), ("iterations", iterations, 1),
+        for field, value, low in (("substeps", 1 if substeps is None else substeps, 1),
+                                   ("iterations", iterations, 1),
                                    ("relax_iterations", relax_iterations, 0),
                                    ("broadphase_capacity", broadphase_capacity, 1)):
             if field != "broadphase_capacity" or value is not None:
@@ -419,6 +439,8 @@ class Scene:
         elif not velocity_first:
             raise ValueError(f"scene.build: contact {contact!r} needs a velocity-first integrator "
                              f"('semi_implicit' or 'implicit_gyro'), got {integrator!r}")
+        if substeps is None:
+            substeps = default_substeps(dt, contact)
         if time_of_impact and contact != "impulse":
             raise ValueError(f"scene.build: 'time_of_impact' needs contact 'impulse', got {contact!r}")
         dtype = jax.dtypes.canonicalize_dtype(jnp.float64 if dtype is None else dtype)

@@ -523,3 +523,13 @@ def test_orientation_recorded_in_model():
 def test_substeps_recorded_in_model():
     model, _, _ = full_scene3().build(dt=1e-3, substeps=np.int64(4))
     assert model.substeps == 4 and type(model.substeps) is int
+
+
+@pytest.mark.parametrize("dt, contact, expected", [(1 / 60, None, 8), (2e-3, None, 1), (1 / 240, None, 2),
+                                                   (1 / 60, "penalty", 1), (1 / 60, "none", 1)])
+def test_default_substeps_keep_impulse_substeps_at_most_1_480_s(dt, contact, expected):
+    scene = scene3()
+    scene.add_plane()
+    model, _, _ = scene.build(dt=dt, contact=contact)
+    assert model.substeps == expected
+    assert model.contact != "impulse" or dt / model.substeps <= 1 / 480 + 1e-12

@@ -8,8 +8,9 @@ v_n (v_rel = n·(v_A − v_B)):
 with a(p) = max(p, 0), g = [p > 0] (hard), or the smooth activation
 a(p) = w·softplus(p/w), g = sigmoid(p/w) of width ``penalty_width`` w. The
 damper c is ``Params.penalty_damping``, or, by default, derived per contact
-from its restitution e so that a linear spring-damper bounces with e:
-ζ = −ln e / √(π² + ln² e), c = 2ζ√(k m) with m the pair's reduced mass.
+from its restitution e so that the clamped spring-damper, stepped as the
+engine steps it, bounces with e (:func:`damping_ratio_from_restitution`):
+c = 2ζ√(k m) with m the pair's reduced mass.
 Either way c is capped at m_c/h, m_c the contact's effective mass along n
 (rotation included) shared among the body's contacts: a stronger explicit
 damper overshoots (a box's corners have m_c ≈ m/16 and would rock for ever).
@@ -47,8 +48,12 @@ blows up (the spring sized on the mean mass of 50 kg is far too stiff for the
 
 from __future__ import annotations
 
+import functools
+import math
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxrb.collision.pairs import row_summer, row_taker
 from jaxrb.components import materialize
@@ -64,10 +69,109 @@ from jaxrb.types import Model, Params, State
 MAX_PENALTY_RESTITUTION = 0.99
 
 
-def damping_ratio_from_restitution(restitution):
-    """ζ of a linear spring-damper whose bounce has coefficient e. restitution: (C,)."""
+def restitution_of_damping_ratio(zeta):
+    """Coefficient of restitution of the clamped linear spring-damper, in closed form.
+
+    The force max(k·p + c·ṗ, 0) of one contact point of mass m (ω₀² = k/m,
+    ζ = c / (2√(k m))) releases the body when the damper's pull would turn
+    the force negative, while it still overlaps: earlier, and faster, than
+    the unclamped oscillator's half period. Solving p(t) for that instant:
+
+    * ζ < 1: e = exp(−ζ (π − 2 arcsin ζ) / √(1 − ζ²));
+    * ζ ≥ 1: e = r^((1 + r) / (1 − r)), r = (ζ − √(ζ² − 1)) / (ζ + √(ζ² − 1))
+
+    (both e⁻² at ζ = 1). Host NumPy, float64: it builds the inverse's table.
+
+    Args:
+        zeta: (...) damping ratios ≥ 0.
+
+    Returns:
+        (...) coefficients of restitution in (0, 1].
+    """
+    zeta = np.asarray(zeta, dtype=np.float64)
+    under = np.minimum(zeta, 1.0 - 1e-12)
+    over = np.maximum(zeta, 1.0 + 1e-12)
+    root = np.sqrt(over ** 2 - 1.0)
+    ratio = (over - root) / (over + root)
+    return np.where(zeta < 1.0,
+                    np.exp(-under * (np.pi - 2.0 * np.arcsin(under)) / np.sqrt(1.0 - under ** 2)),
+                    ratio ** ((1.0 + ratio) / (1.0 - ratio)))
+
+
+def _semi_implicit_equivalent_ratio(zeta, omega_h):
+    """ζ of the continuous oscillator that the semi-implicit step's contact map matches.
+
+    One substep of the explicit spring-damper followed by the position update
+    is the linear map (p, ṗ) → M (p, ṗ) with det M = 1 − 2ζω₀h and
+    tr M = 2 − (ω₀h)² − 2ζω₀h. Its eigenvalues λ = exp(μh) give the exponents
+    μ of a continuous oscillator whose ratio ζ' this returns: −Re μ/|μ| for a
+    complex pair, (1 + r)/(2√r) with r = μ₁/μ₂ for a real one. The step
+    damps more than its ζ says (ζ' > ζ), by 7 % at e = 0.2 and the default
+    ω₀h = 0.19. Host NumPy, float64.
+    """
+    det = 1.0 - 2.0 * zeta * omega_h
+    half_trace = (1.0 + det - omega_h ** 2) / 2.0
+    root = np.sqrt((half_trace ** 2 - det).astype(complex))
+    small, large = np.log(half_trace + root), np.log(half_trace - root)  # log λ₁, log λ₂
+    ratio = np.clip(small.real / np.minimum(large.real, -1e-300), 1e-300, 1.0)
+    return np.where(half_trace ** 2 < det, -small.real / np.abs(small), (1.0 + ratio) / (2.0 * np.sqrt(ratio)))
+
+
+#: The inverse's grid: log e uniform from e = 1e-4 to MAX_PENALTY_RESTITUTION, ω₀h from 0 to 0.6.
+_LOG_E_GRID = (math.log(1e-4), math.log(MAX_PENALTY_RESTITUTION), 256)
+_OMEGA_H_GRID = (0.0, 0.6, 61)
+
+
+@functools.lru_cache(maxsize=None)
+def _inverse_table() -> np.ndarray:
+    """(256, 61) ζ to give the step so that it bounces with e, by log e and ω₀h (bisection, float64)."""
+    # ζ(e) of the continuous clamped oscillator, from a dense table of the closed form.
+    zeta = np.concatenate([np.linspace(0.0, 1.0, 4097)[:-1], np.geomspace(1.0, 60.0, 2048)])
+    log_e = np.log(restitution_of_damping_ratio(zeta))
+    target = np.interp(np.linspace(*_LOG_E_GRID), log_e[::-1], zeta[::-1])[:, None]
+    omega_h = np.maximum(np.linspace(*_OMEGA_H_GRID), 1e-9)[None, :]
+    low = np.zeros(np.broadcast_shapes(target.shape, omega_h.shape))
+    high = low + np.minimum((1.0 - 1e-9) / (2.0 * omega_h), 100.0)  # det M > 0: the damper cap m/h
+    for _ in range(60):
+        middle = (low + high) / 2.0
+        short = _semi_implicit_equivalent_ratio(middle, omega_h) < target
+        low, high = np.where(short, middle, low), np.where(short, high, middle)
+    return (low + high) / 2.0
+
+
+def damping_ratio_from_restitution(restitution, omega_h):
+    """ζ that makes a contact point's bounce have coefficient e on average in the step.
+
+    The inverse of :func:`restitution_of_damping_ratio` (the clamp lets go
+    early: the unclamped oscillator's ζ = −ln e / √(π² + ln² e) made
+    e = 0.6 bounce 12 % high) corrected for the semi-implicit step
+    (:func:`_semi_implicit_equivalent_ratio`), interpolated bilinearly in
+    (log e, ω₀h). What stays is the phase of the impact within a substep:
+    a single bounce's e varies by ±3 % at e = 0.6 and ω₀h = 0.19 (±1 % at
+    ω₀h = 0.05) about a mean within 1 % of e (measured on the 1-D map for
+    e in {0.2, 0.6, 0.9}).
+
+    Args:
+        restitution: (C,) asked coefficients, clipped to [1e-4, 0.99].
+        omega_h: (C,) ω₀h = h√(k/m) of each contact; clipped to 0.6.
+
+    Returns:
+        (C,) damping ratios ζ; the damper is c = 2ζ√(k m).
+    """
+    table = jnp.asarray(_inverse_table(), restitution.dtype)
     log_e = jnp.log(jnp.clip(restitution, 1e-4, MAX_PENALTY_RESTITUTION))
-    return -log_e / jnp.sqrt(jnp.pi ** 2 + log_e ** 2)
+
+    def cell(value, grid):
+        start, stop, count = grid
+        position = jnp.clip((value - start) / ((stop - start) / (count - 1)), 0.0, count - 1.0)
+        index = jnp.minimum(jnp.floor(position), count - 2.0)
+        return index.astype(jnp.int32), position - index
+
+    row, across = cell(log_e, _LOG_E_GRID)
+    column, up = cell(omega_h, _OMEGA_H_GRID)
+    low = table[row, column] * (1.0 - up) + table[row, column + 1] * up
+    high = table[row + 1, column] * (1.0 - up) + table[row + 1, column + 1] * up
+    return low * (1.0 - across) + high * across
 
 
 def spring_activation(model: Model, params: Params, penetration):
@@ -134,7 +238,8 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
 
     if model.penalty_damping_from_restitution:
         reduced_mass = 1.0 / (take(inv_mass, 0) + take(inv_mass, 1))
-        damping = (2.0 * damping_ratio_from_restitution(contacts.restitution)
+        omega_h = h * jnp.sqrt(params.penalty_stiffness / reduced_mass)
+        damping = (2.0 * damping_ratio_from_restitution(contacts.restitution, omega_h)
                    * jnp.sqrt(params.penalty_stiffness * reduced_mass))
     else:
         damping = params.penalty_damping
