@@ -54,7 +54,7 @@ from jaxrb import adjoint as free_body, components as vec, quaternion as quat_op
 from jaxrb.compile import full_precision
 from jaxrb.dynamics import net_wrench
 from jaxrb.math import safe_div, unstack
-from jaxrb.plane_penalty import (Carry, _rows, _stored, _to_bodies, rotation_stored,
+from jaxrb.plane_penalty import (Carry, PlanePenalty, _rows, _stored, _to_bodies, rotation_stored,
                                   supports as plane_penalty_supports)
 from jaxrb.types import Model, Params, State, Wrench
 
@@ -156,19 +156,21 @@ def _group_adjoint(model, params, group, data, rec, angvel, predicted_angvel, h,
     # slip = T(predicted_vel + predicted_angvel × arm)
     g_predicted = tangential(g_slip)
     g_arm = vec.add(g_arm, vec.cross(g_predicted, tuple(map(take, predicted_angvel))))
-    # N = max(k a − d vn g, 0) where active; the damper d g feeds the friction too.
+    # N = max(k a − d vn g, 0) where active; the friction's damper is f g.
     activation, gate, damping, vn = rec["activation"], rec["gate"], rec["damping"], rec["vn"]
     g_raw = jnp.where(active, _max_slope(stiffness * activation - damping * vn * gate) * g_normal, 0.0)
     g_stiffness = g_stiffness + activation * g_raw
     g_activation = stiffness * g_raw
-    g_damping = gate * g_damper - vn * gate * g_raw
-    g_gate = damping * g_damper - damping * vn * g_raw
+    g_damping = -vn * gate * g_raw
+    g_friction_damping = gate * g_damper
+    g_gate = rec["friction_damping"] * g_damper - damping * vn * g_raw
     g_vn = -damping * gate * g_raw
-    # damping = min(d0, m_n / h)
+    # damping = min(d0, m_n / h), friction_damping = min(f0, m_n / h)
     mass_rate = rec["normal_mass"] / h
-    capped = mass_rate < data["damping"]
-    g_mass_rate = jnp.where(capped, g_damping, 0.0)
+    capped, friction_capped = mass_rate < data["damping"], mass_rate < data["friction_damping"]
+    g_mass_rate = jnp.where(capped, g_damping, 0.0) + jnp.where(friction_capped, g_friction_damping, 0.0)
     g_d0 = jnp.where(capped, 0.0, g_damping)
+    g_f0 = jnp.where(friction_capped, 0.0, g_friction_damping)
     g_normal_mass = g_mass_rate / h
     g_h = g_h - mass_rate / h * g_mass_rate
     # (activation, gate) of the penetration p = −dist
@@ -207,7 +209,7 @@ def _group_adjoint(model, params, group, data, rec, angvel, predicted_angvel, h,
         rotation=_add_parts(_outer(g_arm0, local), _outer(arm_cross, g_body_cross)),
         local=vec.matvec_transposed(rotation, g_arm0), inv_mass=g_den,
         inv_inertia=tuple(vec.mul(g_den, entry) for entry in _outer(body_cross, body_cross)),
-        friction=g_friction, damping=g_d0, stiffness=g_stiffness, h=g_h, width=g_width,
+        friction=g_friction, damping=g_d0, friction_damping=g_f0, stiffness=g_stiffness, h=g_h, width=g_width,
         radius=-(g_dist + g_shift))
     return rows, g_held_in
 
@@ -368,6 +370,7 @@ def _prepared_cotangent(prepared, body, rows):
             inv_inertia=vec.matrix_rows(tuple(jnp.broadcast_to(pair_sum(g), data["inv_mass"].shape)
                                        for g in group_rows["inv_inertia"])),
             friction=pair_sum(group_rows["friction"]), damping=pair_sum(group_rows["damping"]),
+            friction_damping=pair_sum(group_rows["friction_damping"]),
             offset=jnp.zeros_like(data["offset"]), radius=pair_sum(group_rows["radius"])))
     return dict(inv_mass=body["inv_mass"], inertia=vec.matrix_rows(body["inertia"]),
                 inv_inertia=vec.matrix_rows(body["inv_inertia"]), groups=tuple(groups))
@@ -383,12 +386,13 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
     differently). Reverse mode keeps every step's input Carry; forward mode
     raises (``jax.custom_vjp``).
     """
-    fast, model = step.plane_penalty, step.model
+    model = step.model
+    fast = PlanePenalty(model)
     num_saved = num_steps // every
     per_step = applied is not None
 
     def forward(params, prepared, carry, applied, keep_inputs):
-        # rb.rollout's plane-penalty loop.
+        # make_step's component step, scanned on its Carry (no State between steps).
         def one(current, applied_now):
             return fast.step(current, params, applied_now, prepared), (current if keep_inputs else None)
 

@@ -6,6 +6,7 @@ import jax
 import numpy as np
 import pytest
 
+from jaxrb import plane_penalty
 from jaxrb.bench import gradients
 
 TINY = dict(gradient_scenes=("tumble",), gradient_memory_steps=(1000,), gradient_time_steps=1000,
@@ -75,7 +76,7 @@ def test_penalty_scene_differentiates_through_its_contact():
     # path, with an adjoint, and a finite gradient that the contact's stiffness
     # moves (tests/test_plane_penalty_adjoint.py checks its values).
     step, params, state = gradients.build("box_drop_penalty")
-    assert step.plane_penalty is not None
+    assert plane_penalty.supports(step.model)
     assert gradients.methods_for(step, ("autodiff", "adjoint")) == ["autodiff", "adjoint"]
     grad = jax.jit(jax.grad(gradients.make_loss(step, 200, "adjoint")))(params, state)
     assert all(np.all(np.isfinite(leaf)) for leaf in jax.tree_util.tree_leaves(grad))

@@ -57,13 +57,19 @@ def _status_in_fresh_process(env_updates, prelude=""):
     return lines[0], lines[1] if len(lines) > 1 else ""
 
 
+_BOTH = rb.compile.CPU_XLA_FLAG + " " + rb.compile.YNN_XLA_FLAG
+_YNN_OPTION = "--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_DOT"
+
+
 @pytest.mark.parametrize("env, prelude, status, flags", [
-    ({}, "", "set", rb.compile.CPU_XLA_FLAG),
-    ({"XLA_FLAGS": "--xla_cpu_enable_fast_math=false"}, "", "set",
-     "--xla_cpu_enable_fast_math=false " + rb.compile.CPU_XLA_FLAG),
+    ({}, "", "set", _BOTH),
+    ({"XLA_FLAGS": "--xla_cpu_enable_fast_math=false"}, "", "set", "--xla_cpu_enable_fast_math=false " + _BOTH),
     ({"JAXRB_XLA_FLAGS": "0"}, "", "opted out", ""),
-    ({"XLA_FLAGS": "--xla_backend_extra_options=a=1"}, "", "left to the user's XLA_FLAGS",
-     "--xla_backend_extra_options=a=1"),
+    ({"XLA_FLAGS": "--xla_backend_extra_options=a=1"}, "", "set",
+     "--xla_backend_extra_options=a=1 " + rb.compile.YNN_XLA_FLAG),
+    ({"XLA_FLAGS": _YNN_OPTION}, "", "set", _YNN_OPTION + " " + rb.compile.CPU_XLA_FLAG),
+    ({"XLA_FLAGS": "--xla_backend_extra_options=a=1 " + _YNN_OPTION}, "", "left to the user's XLA_FLAGS",
+     "--xla_backend_extra_options=a=1 " + _YNN_OPTION),
     ({}, "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()", "too late", ""),
 ])
 def test_import_sets_the_loop_threshold_only_when_it_can_and_may(env, prelude, status, flags):
@@ -76,8 +82,9 @@ def test_the_unroll_limit_is_left_out_where_an_accelerator_plugin_may_run(tmp_pa
     assert rb.compile.cpu_xla_flag(True) == f"--xla_backend_extra_options={threshold}"
     (tmp_path / "jax_plugins").mkdir()  # the namespace package a GPU plugin for JAX installs
     prelude = f"import sys; sys.path.insert(0, {str(tmp_path)!r})"
-    assert _status_in_fresh_process({"JAX_PLATFORMS": ""}, prelude) == ("set", rb.compile.cpu_xla_flag(True))
-    assert _status_in_fresh_process({"JAX_PLATFORMS": "cpu"}, prelude) == ("set", rb.compile.cpu_xla_flag(False))
+    ynn = " " + rb.compile.YNN_XLA_FLAG
+    assert _status_in_fresh_process({"JAX_PLATFORMS": ""}, prelude) == ("set", rb.compile.cpu_xla_flag(True) + ynn)
+    assert _status_in_fresh_process({"JAX_PLATFORMS": "cpu"}, prelude) == ("set", rb.compile.cpu_xla_flag(False) + ynn)
 
 
 _VECTOR_OPS_CODE = """

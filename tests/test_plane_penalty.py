@@ -1,9 +1,8 @@
-"""The rollout's component form (jaxrb.plane_penalty) against make_step's step.
+"""make_step's component form (jaxrb.plane_penalty) against the step on (n, 3) arrays.
 
-Both are the same physics; rollout takes the component form for every model
-:func:`supports` accepts. Each test rolls a scene out both ways (the generic
-way by wrapping the step, which hides its ``plane_penalty`` attribute) in
-float64, where the two differ only by rounding (1e-16 relative), which
+Both are the same physics; make_step returns the component form for every
+model :func:`supports` accepts. Each test rolls a scene out both ways (the
+generic way with ``jaxrb.step.generic_step``) in float64, where the two differ only by rounding (1e-16 relative), which
 stiff contact amplifies over a few hundred steps to about 1e-9; a wrong
 sign, a missed term or a dropped row shows up at 1e-3 and above.
 """
@@ -15,6 +14,7 @@ import pytest
 
 import jaxrb as rb
 from jaxrb import plane_penalty
+from jaxrb.step import generic_step
 
 FIELDS = ("pos", "vel", "angvel", "quat", "contact_impulse", "contact_key", "time", "overflow")
 STEPS = 210
@@ -56,9 +56,7 @@ def two_planes_scene():
 def rollouts(scene, applied=False, **build):
     """The rollout both ways, float64: (component form, generic)."""
     model, params, state = scene.build(dt=0.002, contact="penalty", dtype=jnp.float64, **build)
-    step = rb.make_step(model)
-    assert step.plane_penalty is not None
-    generic = lambda s, p, a=None: step(s, p, a)
+    step, generic = rb.make_step(model), generic_step(model)
     wrench = None
     if applied:
         n = model.num_bodies
@@ -115,7 +113,7 @@ def test_saved_state_carries_over_into_the_generic_step():
     fast = jax.jit(lambda s, p: rb.rollout(step, s, p, 50, every=50))(state, params)
     last = jax.tree_util.tree_map(lambda a: a[-1], fast)
     after_fast = jax.jit(step)(last, params)
-    generic = jax.jit(lambda s, p: rb.rollout(lambda x, q, a=None: step(x, q, a), s, p, 51, every=51))(state, params)
+    generic = jax.jit(lambda s, p: rb.rollout(generic_step(model), s, p, 51, every=51))(state, params)
     np.testing.assert_allclose(np.asarray(after_fast.pos), np.asarray(generic.pos[-1]), atol=TOLERANCE, rtol=0)
 
 
@@ -135,8 +133,7 @@ def test_gradients_of_the_component_rollout_equal_the_steps():
     scene.add_body(rb.Box((0.1, 0.15, 0.05)), mass=1.0, pos=(0.0, 0.0, 0.15), vel=(0.5, 0.0, -1.0),
                    angvel=(2.0, -1.0, 3.0), quat=(0.9, 0.3, 0.1, 0.2), restitution=0.5)
     model, params, state = scene.build(dt=0.002, contact="penalty", dtype=jnp.float64)
-    step = rb.make_step(model)
-    generic = lambda s, p, a=None: step(s, p, a)
+    step, generic = rb.make_step(model), generic_step(model)
 
     def loss(stepper):
         def of(friction, restitution, mass):

@@ -447,7 +447,17 @@ def _median_wall(fn: Callable, repeats: int):
 
 # --- jaxrb ----------------------------------------------------------------------------------
 
-def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, build=None):
+#: Appended to a jaxrb drop row's setting when it ran as a user's loop over ``vmap(step)``.
+LOOP_SUFFIX = ", user loop"
+
+
+def _user_loop(step: Callable, num_steps: int, batched: bool) -> Callable:
+    """``(state, params) -> state``: a ``fori_loop`` over ``vmap(step)``, the loop a user writes by hand."""
+    advance = jax.vmap(step, in_axes=(0, None)) if batched else step
+    return lambda state, params: jax.lax.fori_loop(0, num_steps, lambda _, s: advance(s, params), state)
+
+
+def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, build=None, form="rollout"):
     import jaxrb as rb
 
     options = {"contact": "impulse", "substeps": substeps, **(build or {})}
@@ -455,7 +465,8 @@ def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, buil
     step = rb.make_step(model)
     if batch > 1:
         state = contact._batched_state(state, batch)
-    timing = _time_jax(final_state_fn(step, num_steps, batch > 1), state, params, settings=settings)
+    run = (final_state_fn if form == "rollout" else _user_loop)(step, num_steps, batch > 1)
+    timing = _time_jax(run, state, params, settings=settings)
     initial = np.asarray(state.pos, dtype=np.float64).reshape((batch,) + tuple(state.pos.shape[-2:]))
     final = np.asarray(timing.output.pos, dtype=np.float64).reshape(initial.shape)
     return timing, initial, final, int(state.pos.shape[-2])
@@ -473,8 +484,11 @@ def _setting_text(dt: float, substeps: int, build=None) -> str:
 
 
 def jaxrb_drop(contact_model: str, dt: float, substeps: int, batch: int, num_steps: int,
-               settings: dict) -> PeerRow:
+               settings: dict, form: str = "rollout") -> PeerRow:
     """jaxrb's box drop with ``contact_model`` at step ``dt`` with ``substeps``; see the module docstring.
+
+    ``form``: ``"rollout"`` (``vmap`` of ``rb.rollout``) or ``"loop"`` (a
+    ``fori_loop`` over ``vmap(step)``, as a user writes it); the same step.
 
     Args:
         contact_model: ``"impulse"`` or ``"penalty"`` (its default stiffness and damping).
@@ -489,8 +503,9 @@ def jaxrb_drop(contact_model: str, dt: float, substeps: int, batch: int, num_ste
     """
     build = {"contact": contact_model}
     timing, _, final, bodies = _jaxrb_batched(contact.drop_scene, dt, substeps, batch, num_steps,
-                                              settings, build)
-    return PeerRow("drop", "jaxrb", _setting_text(dt, substeps, build), dt, batch, bodies, num_steps,
+                                              settings, build, form)
+    setting = _setting_text(dt, substeps, build) + (LOOP_SUFFIX if form == "loop" else "")
+    return PeerRow("drop", "jaxrb", setting, dt, batch, bodies, num_steps,
                    timing.compile_s, timing.run_s, _rest_metrics(final[:, 0, 2]))
 
 
@@ -872,6 +887,12 @@ def evaluate_targets(rows: Sequence[PeerRow]) -> List[Target]:
             targets.append(Target("drop", f"{tag} compile ≤ ½ Brax spring's",
                                   f"{mine.compile_s:.2f} s vs {spring.compile_s:.2f} s",
                                   bool(mine.compile_s <= 0.5 * spring.compile_s)))
+    for loop in [r for r in rows if r.scene == "drop" and r.engine == "jaxrb" and r.setting.endswith(LOOP_SUFFIX)]:
+        scanned = _find(rows, "drop", "jaxrb", setting=loop.setting[:-len(LOOP_SUFFIX)], batch=loop.batch)
+        text = f"box drop, jaxrb {loop.setting[:-len(LOOP_SUFFIX)]}: user loop within 10 % of rollout"
+        value = ratio(loop.body_steps_per_s, scanned.body_steps_per_s if scanned else None)
+        targets.append(Target("drop", text, f"{fmt_fixed(value, 2)}×",
+                              bool(abs(value - 1.0) <= 0.1) if math.isfinite(value) else None))
     for mine in [r for r in rows if r.scene == "stack" and r.engine == "jaxrb"]:
         tag = f"10-box stack, jaxrb {mine.setting}:"
         sink, drift = mine.metrics["sink"], mine.metrics["drift"]
@@ -1027,8 +1048,9 @@ def _run_here(settings: dict, modules: dict, skipped: Dict[str, str],
     if "drop" in scenes:
         batch, steps = settings["peers_drop_batch"], settings["peers_drop_steps"]
         for model, dt, substeps in settings["peers_drop_jaxrb"]:
-            attempt("jaxrb", "drop", lambda m=model, d=dt, n=substeps: jaxrb_drop(m, d, n, batch, steps,
-                                                                                  settings))
+            for form in ("rollout", "loop"):
+                attempt("jaxrb", "drop", lambda m=model, d=dt, n=substeps, f=form: jaxrb_drop(
+                    m, d, n, batch, steps, settings, f))
         attempt("mujoco", "drop", lambda: mujoco_drop(modules["mujoco"], steps,
                                                       settings["peers_mujoco_worlds"], settings))
         attempt("mjx", "drop", lambda: mjx_drop(modules["mjx"], batch, steps, settings))

@@ -174,6 +174,27 @@ def damping_ratio_from_restitution(restitution, omega_h):
     return low * (1.0 - across) + high * across
 
 
+def restitution_dampers(restitution, stiffness, mass, h):
+    """The normal damper that bounces with e, and the friction spring's damper.
+
+    The friction spring shares the normal spring's k but its damper is held
+    at critical (ζ ≤ 1): an overdamped explicit tangential damper acts on a
+    tangential effective mass smaller than the normal one (2m/7 for a ball)
+    and overshot, so a ball rolling down a slope slipped twice the step's
+    gravity when e → 0 asked ζ ≫ 1 of the normal damper.
+
+    Args:
+        restitution: (C,) coefficients; stiffness: k (N/m); mass: (C,) the
+            pair's reduced mass (kg); h: substep (s).
+
+    Returns:
+        ``(normal, friction)`` dampers (C,) in N·s/m, before the m_c/h cap.
+    """
+    critical = 2.0 * jnp.sqrt(stiffness * mass)
+    normal = critical * damping_ratio_from_restitution(restitution, h * jnp.sqrt(stiffness / mass))
+    return normal, jnp.minimum(normal, critical)
+
+
 def spring_activation(model: Model, params: Params, penetration):
     """The spring's a(p) and the damper's gate g(p) of each contact (see the module docs).
 
@@ -238,12 +259,12 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
 
     if model.penalty_damping_from_restitution:
         reduced_mass = 1.0 / (take(inv_mass, 0) + take(inv_mass, 1))
-        omega_h = h * jnp.sqrt(params.penalty_stiffness / reduced_mass)
-        damping = (2.0 * damping_ratio_from_restitution(contacts.restitution, omega_h)
-                   * jnp.sqrt(params.penalty_stiffness * reduced_mass))
+        damping, friction_damping = restitution_dampers(contacts.restitution, params.penalty_stiffness,
+                                                        reduced_mass, h)
     else:
-        damping = params.penalty_damping
-    damping = jnp.minimum(damping, contact_mass(normal) / h)
+        damping = friction_damping = params.penalty_damping
+    mass_rate = contact_mass(normal) / h
+    damping, friction_damping = jnp.minimum(damping, mass_rate), jnp.minimum(friction_damping, mass_rate)
     normal_force = jnp.maximum(params.penalty_stiffness * activation - damping * vn * gate, 0.0)
     normal_force = jnp.where(contacts.active, normal_force, 0.0)
 
@@ -261,7 +282,7 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
         # (d angvel'/d angvel = -42 at h = 1 ms; over 40 steps 1e200).
         pressing = (normal_force > 0.0)[:, None]
         friction_force = jnp.where(
-            pressing, clamp_to_disc(elastic - (damping * gate)[:, None] * slip, limit), 0.0)
+            pressing, clamp_to_disc(elastic - (friction_damping * gate)[:, None] * slip, limit), 0.0)
         held_friction = jnp.where(pressing, clamp_to_disc(elastic, limit), 0.0)
     else:
         stop_force = contact_mass(safe_normalize(slip)) / h
