@@ -1,23 +1,24 @@
-"""The rollout's fast path: bodies against planes with penalty contact, carried on components.
+"""The step of bodies against planes with penalty contact, written on components.
 
-:func:`jaxrb.step.rollout` scans ``make_step``'s step over time. For one kind
-of scene it scans this module's step instead: 3D, ``contact="penalty"``,
-``integrator="semi_implicit"``, and every contact pair a shape (box, sphere,
-capsule or point set) against a static plane — boxes, spheres and capsules
-dropped, thrown or slid on the ground, and batches of such worlds. It is
-the same physics, stage for stage (:mod:`jaxrb.contact.penalty`'s law and
-friction models, :mod:`jaxrb.integrators`' semi-implicit phases, the plane
-kernels of :mod:`jaxrb.collision.plane` with the speculative margin of
-:func:`jaxrb.collision.pairs.detect`), written on component tuples, and the
-scan carries the state as components, not as ``(n, 3)`` arrays.
+``make_step`` returns this module's step for one kind of scene: 3D,
+``contact="penalty"``, ``integrator="semi_implicit"``, and every contact
+pair a shape (box, sphere, capsule or point set) against a static plane —
+boxes, spheres and capsules dropped, thrown or slid on the ground, and
+batches of such worlds. It is the same physics, stage for stage
+(:mod:`jaxrb.contact.penalty`'s law and friction models,
+:mod:`jaxrb.integrators`' semi-implicit phases, the plane kernels of
+:mod:`jaxrb.collision.plane` with the speculative margin of
+:func:`jaxrb.collision.pairs.detect`), written on component tuples: the
+State is split into x, y, z parts on entry (:meth:`PlanePenalty.to_carry`)
+and joined on exit (:meth:`PlanePenalty.from_carry`).
 
 Why a second form: on XLA's CPU backend a step written on ``(n, 3)``
 arrays ends each stage in a concatenate whose fused loop picks a component
 per element, unvectorised, recomputing the chain behind it for each
-(docs/performance.md, sections 2 and 3); carrying components through the
-scan removes every such join: the penalty box drop at batch 1 024 runs
-2.4× faster, its batch-1 gradient 1.6× faster, only a batch-1 forward
-rollout 1.7× slower (section 7). Each substep computes each body's rotation
+(docs/performance.md, sections 2 and 3). On components only the final join
+remains, and the carry is stored before it: the batched box drop runs 1.8×
+the (n, 3) step's speed, in a user's loop over ``vmap(step)`` and in
+``rollout`` alike (section 50). Each substep computes each body's rotation
 matrix once and stores it (``components.materialize``): XLA duplicates a
 producer into every consumer, and the 8 contact rows of a box each re-derived
 it from the quaternion. It is not carried from the substep before: as a
@@ -51,7 +52,7 @@ PLANE_KINDS = ("box_plane", "sphere_plane", "capsule_plane", "points_plane")
 
 
 def supports(model: Model) -> bool:
-    """Whether ``model``'s rollouts take this path (see the module docs).
+    """Whether ``make_step(model)`` returns this module's step (see the module docs).
 
     Args:
         model: a Model from ``Scene.build``.
@@ -208,7 +209,7 @@ class Carry:
 class PlanePenalty:
     """The component form of ``make_step(model)``'s step, and the State ↔ Carry conversions.
 
-    ``rollout`` scans :meth:`step`, which calls :meth:`prepare` (what
+    :meth:`step` calls :meth:`prepare` (what
     depends only on Params: mixed friction, dampers, body-frame contact
     points, inverse inertia) inside the loop. Those are a few operations a
     body, on Params that ``vmap`` over worlds leaves unbatched. Computed

@@ -41,7 +41,16 @@ IMPULSE_SUBSTEP = 1.0 / 480.0
 
 
 def default_substeps(dt: float, contact: str) -> int:
-    """Substeps ``Scene.build`` takes when none are given: see its ``substeps`` argument."""
+    """Substeps ``Scene.build`` takes when none are given: see its ``substeps`` argument.
+
+    Args:
+        dt: the step (s).
+        contact: the scene's contact model, ``"none"``, ``"penalty"`` or ``"impulse"``.
+
+    Returns:
+        The fewest substeps of at most :data:`IMPULSE_SUBSTEP` for impulse
+        contact, else 1.
+    """
     if contact != "impulse":
         return 1
     return max(1, math.ceil(dt / IMPULSE_SUBSTEP - 1e-9))

@@ -74,9 +74,11 @@ def test_mujoco_rows_are_there_and_right(section):
     mine_expected = free_fall_height(peers.DROP_CENTRE, peers.PEER_STEP, 80) - peers.HALF
     assert mine.metrics["rest_offset"] == pytest.approx(mine_expected + shifts_up, abs=2e-5)  # float32
     penalty = [r for r in rows if r.engine == "jaxrb" and r.setting.startswith("penalty")]
-    assert len(penalty) == 1  # 20 steps of 2 ms, no contact yet: the same free fall as MuJoCo's
-    assert penalty[0].metrics["rest_offset"] == pytest.approx(expected + shifts_up, abs=2e-5)
-    for row in (one_world, many, mine, penalty[0]):
+    # Timed as rollout and as a user's loop over vmap(step): the same step, the same state.
+    assert [r.setting.endswith(peers.LOOP_SUFFIX) for r in penalty] == [False, True]
+    for row in penalty:  # 20 steps of 2 ms, no contact yet: the same free fall as MuJoCo's
+        assert row.metrics["rest_offset"] == pytest.approx(expected + shifts_up, abs=2e-5)
+    for row in (one_world, many, mine, *penalty):
         assert math.isfinite(row.body_steps_per_s) and row.body_steps_per_s > 0
     assert one_world.compile_s is None and mine.compile_s > 0
     flip = peers._find_flip(rows, "mujoco", 1 / 60)
@@ -303,3 +305,15 @@ def test_a_column_thrown_up_or_sunk_in_one_world_does_not_stand():
     sunk[0, -1] -= 1.5 * peers.STAND_SINK  # one world of two sank 3/4 of a box: the mean (3/8) would pass
     assert not peers._stack_metrics(rest, sunk, peers.STACK_TOP_REST)["stands"]
     assert peers._stack_metrics(rest, rest, peers.STACK_TOP_REST)["stands"]
+
+
+def test_the_user_loop_is_checked_against_the_rollout_of_the_same_setting():
+    rows = [row("drop", "jaxrb", 8.0e6, setting="penalty, 1/500 s", rest_offset=0.0, rest_error=0.0),
+            row("drop", "jaxrb", 7.5e6, setting="penalty, 1/500 s" + peers.LOOP_SUFFIX, rest_offset=0.0,
+                rest_error=0.0),
+            row("drop", "jaxrb", 1.0e6, setting="impulse, 1/500 s", rest_offset=0.0, rest_error=0.0),
+            row("drop", "jaxrb", 0.8e6, setting="impulse, 1/500 s" + peers.LOOP_SUFFIX, rest_offset=0.0,
+                rest_error=0.0)]
+    status = {t.text: (t.status, t.measured) for t in peers.evaluate_targets(rows)}
+    assert status["box drop, jaxrb penalty, 1/500 s: user loop within 10 % of rollout"] == ("PASS", "0.94×")
+    assert status["box drop, jaxrb impulse, 1/500 s: user loop within 10 % of rollout"] == ("MISSED", "0.80×")
