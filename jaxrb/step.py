@@ -33,7 +33,7 @@ def make_step(model: Model) -> Callable:
     integrator) steps in :mod:`jaxrb.plane_penalty`'s component form: the
     State is split into x, y, z parts on entry and joined on exit, and every
     stage between works on (n,) arrays, which XLA's CPU backend vectorises
-    (2.3× the batched throughput of :func:`generic_step`'s (n, 3) form). The
+    (1.8× the batched throughput of :func:`generic_step`'s (n, 3) form). The
     same step serves ``rb.rollout`` and a user's own loop.
 
     Args:

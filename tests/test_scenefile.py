@@ -158,7 +158,7 @@ def test_every_add_body_and_build_keyword_is_typed():
     kinds = sf._build_kinds()
     assert set(kinds) == set(inspect.signature(rb.Scene.build).parameters) - {"self"}
     assert all(kind.rstrip("?") != "any" for kind in kinds.values()), kinds
-    assert kinds["dt"] == "number" and kinds["substeps"] == "integer" and kinds["contact"] == "string?"
+    assert kinds["dt"] == "number" and kinds["substeps"] == "integer?" and kinds["contact"] == "string?"
 
 
 def _base():

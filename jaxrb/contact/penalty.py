@@ -67,6 +67,11 @@ from jaxrb.types import Model, Params, State
 # (apex 0.903 -> 0.948 m over 50 undamped bounces at h = 1 ms), so e is capped
 # below 1: ζ >= 0.0032 removes ~1 % per bounce and nothing can gain energy.
 MAX_PENALTY_RESTITUTION = 0.99
+# Below e = 0.05 the damper would pass critical by more than 1.6× and, capped by
+# the explicit step's m_c/h, made the contact so stiff that gradients blew up
+# (a capsule's size gradient over 0.5 s: 3.3e6 at e = 1e-4, 2.9 at 0.05), so
+# smaller e (the default 0 included) are taken as 0.05.
+MIN_PENALTY_RESTITUTION = 0.05
 
 
 def restitution_of_damping_ratio(zeta):
@@ -117,8 +122,8 @@ def _semi_implicit_equivalent_ratio(zeta, omega_h):
     return np.where(half_trace ** 2 < det, -small.real / np.abs(small), (1.0 + ratio) / (2.0 * np.sqrt(ratio)))
 
 
-#: The inverse's grid: log e uniform from e = 1e-4 to MAX_PENALTY_RESTITUTION, ω₀h from 0 to 0.6.
-_LOG_E_GRID = (math.log(1e-4), math.log(MAX_PENALTY_RESTITUTION), 256)
+#: The inverse's grid: log e uniform over [MIN_, MAX_PENALTY_RESTITUTION], ω₀h from 0 to 0.6.
+_LOG_E_GRID = (math.log(MIN_PENALTY_RESTITUTION), math.log(MAX_PENALTY_RESTITUTION), 256)
 _OMEGA_H_GRID = (0.0, 0.6, 61)
 
 
@@ -152,14 +157,15 @@ def damping_ratio_from_restitution(restitution, omega_h):
     e in {0.2, 0.6, 0.9}).
 
     Args:
-        restitution: (C,) asked coefficients, clipped to [1e-4, 0.99].
+        restitution: (C,) asked coefficients, clipped to [0.05, 0.99]
+            (:data:`MIN_PENALTY_RESTITUTION`, :data:`MAX_PENALTY_RESTITUTION`).
         omega_h: (C,) ω₀h = h√(k/m) of each contact; clipped to 0.6.
 
     Returns:
         (C,) damping ratios ζ; the damper is c = 2ζ√(k m).
     """
     table = jnp.asarray(_inverse_table(), restitution.dtype)
-    log_e = jnp.log(jnp.clip(restitution, 1e-4, MAX_PENALTY_RESTITUTION))
+    log_e = jnp.log(jnp.clip(restitution, MIN_PENALTY_RESTITUTION, MAX_PENALTY_RESTITUTION))
 
     def cell(value, grid):
         start, stop, count = grid
