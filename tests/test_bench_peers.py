@@ -153,14 +153,14 @@ def test_targets_on_made_up_numbers():
         row("flip", "mujoco", 1e5, h=1 / 240, setting="RK4", flip_error=2e-6, dtype="float64"),
     ]
     targets = peers.evaluate_targets(rows)
-    spring = by_text(targets, "≥ 5× Brax spring")
+    spring = by_text(targets, "≥ 5× Brax spring body-steps/s")
     assert spring.status == "MISSED" and spring.measured.startswith("4.91×")  # 5.2 / 1.06
     assert by_text(targets, "≥ 30× MJX").status == "PASS"  # 153×
     assert by_text(targets, "rests within 0.5 mm").status == "PASS"
     assert by_text(targets, "compile ≤ ½").status == "PASS"  # 2.0 ≤ 2.45
     assert by_text(targets, "sinks < 2 mm").status == "MISSED"
     assert by_text(targets, "drifts < 1 mm").status == "PASS"
-    assert by_text(targets, "≥ 3× Brax").status == "PASS"  # 6×
+    assert by_text(targets, "≥ 5× Brax spring body-s/s").status == "PASS"  # 6×
     assert by_text(targets, "20× Jax2D").status == "PASS"  # 27×
     assert by_text(targets, "batch 256 > pymunk").status == "NOT MEASURED"
     assert by_text(targets, "still standing").status == "PASS"
@@ -171,7 +171,7 @@ def test_targets_on_made_up_numbers():
     rows[0] = row("drop", "jaxrb", 5.4e6, compile_s=2.5, rest_offset=6e-4, rest_error=6e-4)
     rows[10] = row("flip", "jaxrb", 1e5, h=1 / 60, setting="a", flip_error=2e-4, dtype="float64")
     targets = peers.evaluate_targets(rows)
-    assert by_text(targets, "≥ 5× Brax spring").status == "PASS"  # 5.09×
+    assert by_text(targets, "≥ 5× Brax spring body-steps/s").status == "PASS"  # 5.09×
     assert by_text(targets, "rests within 0.5 mm").status == "MISSED"
     assert by_text(targets, "compile ≤ ½").status == "MISSED"  # 2.5 > 2.45
     assert by_text(targets, "float64").status == "MISSED"  # 2e-4 > 1.2e-4
@@ -193,13 +193,13 @@ def test_every_jaxrb_setting_is_checked_against_the_scene_targets():
     ]
     status = {t.text: t.status for t in peers.evaluate_targets(rows)}
     assert status["10-box stack, jaxrb penalty: sinks < 2 mm over 2 s"] == "MISSED"
-    assert status["10-box stack, jaxrb penalty: ≥ 3× Brax spring body-steps/s"] == "PASS"  # 6×
+    assert status["10-box stack, jaxrb penalty: ≥ 5× Brax spring body-s/s"] == "PASS"  # 6×
     assert status["10-box stack, jaxrb impulse: sinks < 2 mm over 2 s"] == "PASS"
-    assert status["10-box stack, jaxrb impulse: ≥ 3× Brax spring body-steps/s"] == "MISSED"  # 0.2×
-    assert status["pyramid, jaxrb penalty: ≥ 20× Jax2D body-steps/s at the same batch"] == "PASS"  # 150×
-    assert status["pyramid, jaxrb penalty: at batch 256 > pymunk in one world"] == "PASS"  # 1.6×
-    assert status["pyramid, jaxrb impulse: ≥ 20× Jax2D body-steps/s at the same batch"] == "MISSED"  # 2.5×
-    assert status["pyramid, jaxrb impulse: at batch 256 > pymunk in one world"] == "NOT MEASURED"
+    assert status["10-box stack, jaxrb impulse: ≥ 5× Brax spring body-s/s"] == "MISSED"  # 0.2×
+    assert status["pyramid, jaxrb penalty: ≥ 20× Jax2D body-s/s at the same batch"] == "PASS"  # 150×
+    assert status["pyramid, jaxrb penalty: at batch 256 > pymunk in one world (body-s/s)"] == "PASS"  # 1.6×
+    assert status["pyramid, jaxrb impulse: ≥ 20× Jax2D body-s/s at the same batch"] == "MISSED"  # 2.5×
+    assert status["pyramid, jaxrb impulse: at batch 256 > pymunk in one world (body-s/s)"] == "NOT MEASURED"
     with pytest.raises(ValueError, match="unknown jaxrb contact model 'soft'"):
         peers.jaxrb_stack("soft", 1, 0.1, peers.QUICK)
 
@@ -317,3 +317,17 @@ def test_the_user_loop_is_checked_against_the_rollout_of_the_same_setting():
     status = {t.text: (t.status, t.measured) for t in peers.evaluate_targets(rows)}
     assert status["box drop, jaxrb penalty, 1/500 s: user loop within 10 % of rollout"] == ("PASS", "0.94×")
     assert status["box drop, jaxrb impulse, 1/500 s: user loop within 10 % of rollout"] == ("MISSED", "0.80×")
+
+
+def test_scenes_stepped_at_different_steps_compare_in_simulated_time():
+    """pymunk at 1/60 s against jaxrb at 2 ms: 1.6× pymunk's body-steps/s is 0.19× its body-s/s."""
+    rows = [row("pyramid", "jaxrb", 8e5, batch=256, bodies=55, setting="penalty", sink=1e-2, drift=1e-3,
+                stands=True),
+            row("pyramid", "jaxrb", 6e5, batch=16, bodies=55, setting="penalty", sink=1e-2, drift=1e-3, stands=True),
+            row("pyramid", "pymunk", 5e5, batch=1, bodies=55, h=1 / 60, sink=1e-3, drift=1e-4, stands=True),
+            row("pyramid", "jax2d", 4e3, batch=16, bodies=55, h=1 / 60, sink=5e-2, drift=1e-3, stands=True)]
+    status = {t.text: (t.status, t.measured) for t in peers.evaluate_targets(rows)}
+    pymunk = status["pyramid, jaxrb penalty: at batch 256 > pymunk in one world (body-s/s)"]
+    assert pymunk[0] == "MISSED" and pymunk[1].startswith("0.19×")  # 8e5 · 0.002 / (5e5 / 60)
+    jax2d = status["pyramid, jaxrb penalty: ≥ 20× Jax2D body-s/s at the same batch"]
+    assert jax2d[0] == "MISSED" and jax2d[1].startswith("18.00×")  # 6e5 · 0.002 / (4e3 / 60)
