@@ -430,7 +430,8 @@ class PlanePenalty:
                 held = group.normal.tangential(vec.where(active, carry.friction[index]), normal)
                 elastic = vec.sub(held, vec.along(stiffness * h, group.normal.tangential(rel_vel, normal)))
                 # Both clamps below read these, each part in its own fusion.
-                (normal_force, damper), elastic, slip = _stored(params, (normal_force, friction_damping * gate), elastic, slip)
+                (normal_force, damper), elastic, slip = _stored(params, (normal_force, friction_damping * gate),
+                                                                elastic, slip)
                 limit = data["friction"] * normal_force
                 pressing = normal_force > 0.0
                 friction = vec.where(pressing, vec.clamp_to_disc(vec.sub(elastic, vec.along(damper, slip)), limit))
@@ -445,7 +446,8 @@ class PlanePenalty:
             if record is not None:  # the spring friction's intermediates (the adjoint's only law)
                 record["groups"].append(dict(
                     row, sharing=sharing, activation=activation, gate=gate, normal_mass=normal_mass,
-                    damping=damping, friction_damping=friction_damping, normal_force=normal_force, damper=damper, elastic=elastic, slip=slip,
+                    damping=damping, friction_damping=friction_damping, normal_force=normal_force, damper=damper,
+                    elastic=elastic, slip=slip,
                     limit=limit, pressing=pressing, friction=friction, held=held, total=total))
             to_bodies = lambda vector: tuple(part if vec.is_zero(part) else _to_bodies(part, group.bodies, num)
                                              for part in vector)

@@ -241,7 +241,7 @@ class PeerRow:
 
 @dataclasses.dataclass
 class Target:
-    """One speed or accuracy target (issues 6 and 60): what was measured and whether it was met (``None``: not measured)."""
+    """One target (issues 6 and 60): what was measured and whether it was met (``None``: not measured)."""
 
     scene: str
     text: str
