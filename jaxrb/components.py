@@ -95,7 +95,7 @@ def materialize(vector, params):
     not batched unless dt itself is swept, where the conditional becomes a
     select and the result is the same. The penalty box drop at batch 1 024
     ran 15 % faster with it (docs/performance.md, section 7), and the
-    hand-written adjoint of :mod:`jaxrb.adjoint` about 35 % at batch 1.
+    hand-written adjoint of :mod:`jaxrb.free_body_adjoint` about 35 % at batch 1.
 
     Only on the CPU: elsewhere (``jax.lax.platform_dependent``, resolved when
     the step is lowered, so the compiler never sees the choice) the parts
@@ -127,3 +127,52 @@ def stored_matrix(rows, keep):
 def matrix_parts(matrices):
     """(n, 3, 3) -> rows of (n,) entries."""
     return tuple(unstack(row) for row in unstack(matrices, -2))
+
+
+class stacked:  # noqa: N801 (used like the module: ``vectors.dot``)
+    """This module's vector operations on stacked (..., k) arrays.
+
+    A law written against ``vectors.dot``, ``vectors.along``, … runs in both
+    layouts: with this module (vectors as parts of (P, K)) in the component
+    step and with ``stacked`` (vectors as (C, k) rows) in the general one, so
+    the law is written once (:func:`jaxrb.contact.penalty.contact_law`).
+    """
+
+    @staticmethod
+    def dot(a, b):
+        """a · b over the last axis: (..., k), (..., k) -> (...)."""
+        return jnp.sum(a * b, axis=-1)
+
+    @staticmethod
+    def along(scale, vector):
+        """scale (...) · vector (..., k)."""
+        return jnp.asarray(scale)[..., None] * vector
+
+    @staticmethod
+    def add(a, b):
+        """a + b."""
+        return a + b
+
+    @staticmethod
+    def sub(a, b):
+        """a − b."""
+        return a - b
+
+    @staticmethod
+    def where(condition, vector):
+        """vector (..., k) where condition (...), else 0."""
+        return jnp.where(condition[..., None], vector, 0.0)
+
+    @staticmethod
+    def safe_length(vector):
+        """|v| (...) with a zero gradient at v = 0."""
+        return safe_sqrt(jnp.sum(vector * vector, axis=-1))
+
+    @staticmethod
+    def clamp_to_disc(vector, limit):
+        """v (..., k) scaled to length <= limit (...)."""
+        length = stacked.safe_length(vector)
+        # >=, not >: with limit 0 the clamp is 0 for every vector, so its derivative
+        # at the zero vector is 0, not the identity (an unloaded friction row leaked
+        # gradient through a body resting above the plane).
+        return stacked.along(jnp.where(length >= limit, safe_div(limit, length), 1.0), vector)

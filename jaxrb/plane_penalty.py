@@ -42,9 +42,9 @@ from jaxrb import components as vec, quaternion as quat_ops
 from jaxrb.collision.geometry import geometry
 from jaxrb.collision.plane import BOX_CORNERS
 from jaxrb.collision.pairs import mix_friction
-from jaxrb.contact.penalty import restitution_dampers, spring_activation
+from jaxrb.contact.penalty import contact_law, restitution_dampers, spring_activation
 from jaxrb.dynamics import inverse_inertia, net_wrench
-from jaxrb.math import safe_div, unstack
+from jaxrb.math import unstack
 from jaxrb.types import Model, Params, State
 
 #: Pair kinds this path handles: each is a set of body-frame points swept by a radius.
@@ -400,7 +400,6 @@ class PlanePenalty:
         predicted_vel, predicted_angvel = self._velocity_phase(params, prepared, carry, rotation, force, torque, h)
         if record is not None:
             record.update(predicted_angvel=predicted_angvel, groups=[])
-        stiffness = params.penalty_stiffness
         rows = [self._contact_rows(params, carry, rotation, group, data)
                 for group, data in zip(self.groups, prepared["groups"])]
         # Contacts touching each body, over all its groups (the damper cap shares them).
@@ -419,36 +418,19 @@ class PlanePenalty:
                 return 1.0 / (data["inv_mass"] + angular) / sharing
 
             activation, gate = spring_activation(model, params, -row["dist"])
-            normal_mass = contact_mass(normal)
-            damping = jnp.minimum(data["damping"], normal_mass / h)
-            friction_damping = jnp.minimum(data["friction_damping"], normal_mass / h)
-            normal_force = jnp.where(active, jnp.maximum(stiffness * activation - damping * row["vn"] * gate, 0.0),
-                                     0.0)
             predicted_rel = vec.add(tuple(map(take, predicted_vel)), vec.cross(tuple(map(take, predicted_angvel)), arm))
-            slip = group.normal.tangential(predicted_rel, normal)
-            if model.penalty_friction == "spring":
-                held = group.normal.tangential(vec.where(active, carry.friction[index]), normal)
-                elastic = vec.sub(held, vec.along(stiffness * h, group.normal.tangential(rel_vel, normal)))
-                # Both clamps below read these, each part in its own fusion.
-                (normal_force, damper), elastic, slip = _stored(params, (normal_force, friction_damping * gate),
-                                                                elastic, slip)
-                limit = data["friction"] * normal_force
-                pressing = normal_force > 0.0
-                friction = vec.where(pressing, vec.clamp_to_disc(vec.sub(elastic, vec.along(damper, slip)), limit))
-                held = vec.where(pressing, vec.clamp_to_disc(elastic, limit))
-            else:
-                limit = data["friction"] * normal_force
-                length = vec.safe_length(slip)
-                stop_force = contact_mass(vec.along(safe_div(1.0, length), slip)) / h
-                coulomb = limit / jnp.sqrt(length ** 2 + params.friction_velocity ** 2)
-                friction = held = vec.along(-jnp.minimum(coulomb, stop_force), slip)
+            held = group.normal.tangential(vec.where(active, carry.friction[index]), normal)
+            law = contact_law(vec, model, params, h, activation=activation, gate=gate, vn=row["vn"], active=active,
+                              contact_mass=contact_mass, normal=normal, damping=data["damping"],
+                              friction_damping=data["friction_damping"], friction=data["friction"],
+                              tangential_vel=group.normal.tangential(rel_vel, normal),
+                              slip=group.normal.tangential(predicted_rel, normal), held=held,
+                              store=lambda *vectors: _stored(params, *vectors))
+            normal_force, friction, held = law["normal_force"], law["friction_force"], law["held"]
             total = vec.materialize(vec.add(vec.along(normal_force, normal), friction), params)
             if record is not None:  # the spring friction's intermediates (the adjoint's only law)
-                record["groups"].append(dict(
-                    row, sharing=sharing, activation=activation, gate=gate, normal_mass=normal_mass,
-                    damping=damping, friction_damping=friction_damping, normal_force=normal_force, damper=damper,
-                    elastic=elastic, slip=slip,
-                    limit=limit, pressing=pressing, friction=friction, held=held, total=total))
+                record["groups"].append(dict(row, **law, sharing=sharing, activation=activation, gate=gate,
+                                             friction=friction, total=total))
             to_bodies = lambda vector: tuple(part if vec.is_zero(part) else _to_bodies(part, group.bodies, num)
                                              for part in vector)
             contact_force = vec.add(contact_force, to_bodies(total))

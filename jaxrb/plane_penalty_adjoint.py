@@ -7,7 +7,7 @@ its Coulomb disc) and a free-body semi-implicit substep driven by it.
 Autodiff's reverse mode of that step costs 4-5 forward rollouts at one
 world; with the contact's gradient stopped it still cost 3.5, so both halves
 transpose badly (docs/performance.md, section 21). This module writes both
-adjoints by hand, as :mod:`jaxrb.adjoint` does for free bodies:
+adjoints by hand, as :mod:`jaxrb.free_body_adjoint` does for free bodies:
 
 * the forward loop is the plane-penalty rollout's (its States equal
   ``rb.rollout``'s to float rounding: XLA fuses the two programs
@@ -15,7 +15,7 @@ adjoints by hand, as :mod:`jaxrb.adjoint` does for free bodies:
   ``every=1`` is the trajectory itself;
 * the backward loop recomputes a step from its input, the contact's
   intermediates recorded by ``_penalty`` itself, then applies the chain
-  rule on components: the free-body substep by :mod:`jaxrb.adjoint`'s
+  rule on components: the free-body substep by :mod:`jaxrb.free_body_adjoint`'s
   substep adjoint, the contact wrench by :func:`_group_adjoint`, with the
   cotangents many others read stored once (``components.materialize``);
 * the cotangents of what ``PlanePenalty.prepare`` derives from the Params
@@ -50,7 +50,8 @@ from typing import Callable, Optional
 import jax
 import jax.numpy as jnp
 
-from jaxrb import adjoint as free_body, components as vec, quaternion as quat_ops
+from jaxrb import components as vec, quaternion as quat_ops
+from jaxrb import free_body_adjoint as free_body
 from jaxrb.compile import full_precision
 from jaxrb.dynamics import net_wrench
 from jaxrb.math import safe_div, unstack

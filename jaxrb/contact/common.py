@@ -9,8 +9,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxrb import quaternion as quat_ops
+from jaxrb.components import stacked
 from jaxrb.dynamics import inverse_inertia
-from jaxrb.math import cross, cross2, cross_scalar2, matmul, matvec3, safe_div, safe_norm
+from jaxrb.math import cross, cross2, cross_scalar2, matmul, matvec3
 from jaxrb.types import Model, Params, State
 
 
@@ -99,10 +100,13 @@ def carried_impulses(state: State, contacts):
 
 
 def clamp_to_disc(vector, limit):
-    """Each (..., k) friction vector scaled down to length <= ``limit`` (...): the Coulomb cone."""
-    length = safe_norm(vector, keepdims=True)
-    limit = limit[..., None]
-    # >=, not >: with limit 0 the clamp is 0 for every vector, so its derivative
-    # at the zero vector is 0, not the identity (an unloaded friction row leaked
-    # gradient through a body resting above the plane).
-    return vector * jnp.where(length >= limit, safe_div(limit, length), 1.0)
+    """Each (..., k) friction vector scaled down to length <= ``limit`` (...): the Coulomb cone.
+
+    Args:
+        vector: (..., k) friction vectors.
+        limit: (...) their Coulomb bounds.
+
+    Returns:
+        (..., k) the clamped vectors (:meth:`jaxrb.components.stacked.clamp_to_disc`).
+    """
+    return stacked.clamp_to_disc(vector, limit)

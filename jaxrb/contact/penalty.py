@@ -56,10 +56,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.collision.pairs import row_summer, row_taker
-from jaxrb.components import materialize
-from jaxrb.contact.common import (clamp_to_disc, effective_mass, moment,
+from jaxrb.components import materialize, stacked
+from jaxrb.contact.common import (effective_mass, moment,
                                   relative_velocity, world_inverse_inertia)
-from jaxrb.math import safe_norm, safe_normalize
+from jaxrb.math import safe_div
 from jaxrb.types import Model, Params, State
 
 
@@ -218,6 +218,81 @@ def spring_activation(model: Model, params: Params, penetration):
     return jnp.maximum(penetration, 0.0), (penetration > 0.0).astype(penetration.dtype)
 
 
+def contact_law(vectors, model: Model, params: Params, h, *, activation, gate, vn, active, contact_mass, normal,
+                damping, friction_damping, friction, tangential_vel, slip, held, store=None):
+    """The penalty law of each contact row (module docs): normal force, friction force, friction spring carried.
+
+    Written once for both layouts: ``vectors`` is :mod:`jaxrb.components`
+    (a vector is a tuple of parts, in the component step of
+    :mod:`jaxrb.plane_penalty`) or :class:`jaxrb.components.stacked` (a
+    vector is a (C, dim) array, in :func:`penalty_wrench`). Below, (C)
+    stands for either layout's per-row shape.
+
+    Args:
+        vectors: the vector operations of the layout.
+        model: Model (``penalty_friction``).
+        params: Params (``penalty_stiffness``, ``friction_velocity``).
+        h: substep length (s).
+        activation, gate: (C) the spring's a(p) and the damper's gate g(p)
+            (:func:`spring_activation`).
+        vn: (C) normal approach speed n·v_rel.
+        active: (C) bool, rows within the speculative margin.
+        contact_mass: function of a direction (vector) -> (C) effective
+            mass along it, shared among the body's contacts.
+        normal: (vector) contact normal.
+        damping, friction_damping: (C) the normal and friction dampers
+            before their cap m_c/h.
+        friction: (C) the row's friction coefficient.
+        tangential_vel: (vector) the tangential relative velocity the
+            positions moved with (the spring's stretch rate).
+        slip: (vector) the tangential slip predicted after this substep's
+            other loads (the damper's and the regularised law's input).
+        held: (vector) the elastic friction force carried from the last
+            substep, in this tangent plane (zero for new rows).
+        store: optional function storing its arguments (vectors) once for
+            all their readers (:func:`jaxrb.components.materialize`).
+
+    Returns:
+        A dict: ``normal_force`` (C), ``friction_force`` and ``held``
+        (vectors: the friction force applied and the elastic force to
+        carry), and the intermediates the hand-written adjoint of
+        :mod:`jaxrb.plane_penalty_adjoint` reads.
+    """
+    normal_mass = contact_mass(normal)
+    damping = jnp.minimum(damping, normal_mass / h)
+    friction_damping = jnp.minimum(friction_damping, normal_mass / h)
+    stiffness = params.penalty_stiffness
+    normal_force = jnp.where(active, jnp.maximum(stiffness * activation - damping * vn * gate, 0.0), 0.0)
+    out = dict(normal_mass=normal_mass, damping=damping, friction_damping=friction_damping)
+    if model.penalty_friction == "spring":
+        # The spring stretches with the slip the positions moved with (so it is
+        # the displacement since sticking, and at rest exactly no slip), the
+        # damper acts on the predicted slip (so a steady load is met at once).
+        elastic = vectors.sub(held, vectors.along(stiffness * h, tangential_vel))
+        damper = friction_damping * gate
+        if store is not None:  # both clamps below read these
+            (normal_force, damper), elastic, slip = store((normal_force, damper), elastic, slip)
+        limit = friction * normal_force
+        # Only rows that press carry friction. The mask changes no value (the
+        # limit is 0 elsewhere) but keeps out clamp_to_disc's derivative at a
+        # zero vector under a zero limit, the identity: a body at rest away
+        # from the plane got a friction-spring gradient of -k·h per step
+        # (d angvel'/d angvel = -42 at h = 1 ms; over 40 steps 1e200).
+        pressing = normal_force > 0.0
+        friction_force = vectors.where(
+            pressing, vectors.clamp_to_disc(vectors.sub(elastic, vectors.along(damper, slip)), limit))
+        held = vectors.where(pressing, vectors.clamp_to_disc(elastic, limit))
+        out.update(damper=damper, elastic=elastic, pressing=pressing)
+    else:
+        limit = friction * normal_force
+        length = vectors.safe_length(slip)
+        stop_force = contact_mass(vectors.along(safe_div(1.0, length), slip)) / h
+        coulomb = limit / jnp.sqrt(length ** 2 + params.friction_velocity ** 2)
+        friction_force = held = vectors.along(-jnp.minimum(coulomb, stop_force), slip)
+    out.update(normal_force=normal_force, friction_force=friction_force, held=held, slip=slip, limit=limit)
+    return out
+
+
 def penalty_wrench(model: Model, params: Params, state: State, contacts, h, predicted: State,
                    held_friction):
     """Contact force and torque on every body, and each contact's friction spring force.
@@ -269,33 +344,12 @@ def penalty_wrench(model: Model, params: Params, state: State, contacts, h, pred
                                                         reduced_mass, h)
     else:
         damping = friction_damping = params.penalty_damping
-    mass_rate = contact_mass(normal) / h
-    damping, friction_damping = jnp.minimum(damping, mass_rate), jnp.minimum(friction_damping, mass_rate)
-    normal_force = jnp.maximum(params.penalty_stiffness * activation - damping * vn * gate, 0.0)
-    normal_force = jnp.where(contacts.active, normal_force, 0.0)
-
-    slip = tangential(contact_velocity(predicted))
-    limit = contacts.friction * normal_force
-    if model.penalty_friction == "spring":
-        # The spring stretches with the slip the positions moved with (so it is
-        # the displacement since sticking, and at rest exactly no slip), the
-        # damper acts on the predicted slip (so a steady load is met at once).
-        elastic = held_friction - params.penalty_stiffness * h * tangential(rel_vel)
-        # Only rows that press carry friction. The mask changes no value (the
-        # limit is 0 elsewhere) but keeps out clamp_to_disc's derivative at a
-        # zero vector under a zero limit, the identity: a body at rest away
-        # from the plane got a friction-spring gradient of -k·h per step
-        # (d angvel'/d angvel = -42 at h = 1 ms; over 40 steps 1e200).
-        pressing = (normal_force > 0.0)[:, None]
-        friction_force = jnp.where(
-            pressing, clamp_to_disc(elastic - (friction_damping * gate)[:, None] * slip, limit), 0.0)
-        held_friction = jnp.where(pressing, clamp_to_disc(elastic, limit), 0.0)
-    else:
-        stop_force = contact_mass(safe_normalize(slip)) / h
-        coulomb = limit / jnp.sqrt(safe_norm(slip) ** 2 + params.friction_velocity ** 2)
-        friction_force = -jnp.minimum(coulomb, stop_force)[:, None] * slip
-        held_friction = friction_force
-
+    law = contact_law(stacked, model, params, h, activation=activation, gate=gate, vn=vn, active=contacts.active,
+                      contact_mass=contact_mass, normal=normal, damping=damping,
+                      friction_damping=friction_damping, friction=contacts.friction,
+                      tangential_vel=tangential(rel_vel), slip=tangential(contact_velocity(predicted)),
+                      held=held_friction)
+    normal_force, friction_force, held_friction = law["normal_force"], law["friction_force"], law["held"]
     force = normal_force[:, None] * normal + friction_force
     # Stored once: each of the four per-body sums below would otherwise
     # re-derive the whole contact law (XLA fuses a producer into every consumer).
