@@ -85,6 +85,11 @@ class Observation:
         vel: (T, n, dim) linear velocities, or None.
         angvel: (T, n, 3) world angular velocities in 3D, (T, n) in 2D, or None.
         mask: (T, n) weights (1 observed, 0 missing), or None for all observed.
+        time: (T,) the simulated time (s) of each sample as the rollout
+            recorded it (``State.time``), or None (measured data). :func:`fit`
+            checks it against the initial time plus ``steps``·dt, so samples
+            labelled with the wrong steps (``observe``'s ``every`` taken as
+            "keep every k-th sample") are an error, not a silently wrong fit.
     """
 
     steps: Array
@@ -94,6 +99,7 @@ class Observation:
     vel: Optional[Array] = None
     angvel: Optional[Array] = None
     mask: Optional[Array] = None
+    time: Optional[Array] = None
 
 
 def observe(states: State, steps: Optional[Sequence[int]] = None, *, every: int = 1,
@@ -104,7 +110,10 @@ def observe(states: State, steps: Optional[Sequence[int]] = None, *, every: int 
         states: State with a leading time axis, from ``rollout(..., every=every)``
             (its sample i is the state after ``every·(i + 1)`` steps).
         steps: (T,) step indices to keep, multiples of ``every``; default all.
-        every: the ``every`` the rollout was run with.
+            To keep every 10th state of an every-step rollout, pass
+            ``steps=range(10, T + 1, 10)``.
+        every: the ``every`` the rollout was run with (not a thinning:
+            :func:`fit` raises if the states' times disagree with it).
         velocities: also record ``vel`` and ``angvel``.
 
     Returns:
@@ -122,7 +131,7 @@ def observe(states: State, steps: Optional[Sequence[int]] = None, *, every: int 
     return Observation(steps=jnp.asarray(steps, dtype=jnp.int32), pos=take(states.pos),
                        quat=take(states.quat), angle=take(states.angle),
                        vel=take(states.vel) if velocities else None,
-                       angvel=take(states.angvel) if velocities else None)
+                       angvel=take(states.angvel) if velocities else None, time=take(states.time))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -555,12 +564,12 @@ def _check_observation(observed: Observation, state: State, batched: bool) -> in
     count, num_bodies, dim = steps.shape[-1], state.pos.shape[-2], state.pos.shape[-1]
     expected = {"pos": (num_bodies, dim), "vel": (num_bodies, dim), "mask": (num_bodies,),
                 "quat": (num_bodies, 4), "angle": (num_bodies,),
-                "angvel": (num_bodies, 3) if dim == 3 else (num_bodies,)}
+                "angvel": (num_bodies, 3) if dim == 3 else (num_bodies,), "time": ()}
     if dim == 3 and observed.angle is not None:
         raise ValueError("sysid: Observation field 'angle' is 2D only; use 'quat' in 3D")
     if dim == 2 and observed.quat is not None:
         raise ValueError("sysid: Observation field 'quat' is 3D only; use 'angle' in 2D")
-    present = [name for name in expected if getattr(observed, name) is not None and name != "mask"]
+    present = [name for name in expected if getattr(observed, name) is not None and name not in ("mask", "time")]
     if not present:
         raise ValueError("sysid: the Observation holds no data (pos, quat/angle, vel or angvel)")
     for name, shape in expected.items():
@@ -573,6 +582,23 @@ def _check_observation(observed: Observation, state: State, batched: bool) -> in
         if name != "mask" and not np.all(np.isfinite(np.asarray(value))):
             raise ValueError(f"sysid: Observation field {name!r} must be finite")
     return int(steps.max())
+
+
+def _check_observation_times(observed: Observation, state: State, params: Params) -> None:
+    """Raise where the samples' recorded times are not the initial time plus ``steps``·dt (wrong ``every``)."""
+    if observed.time is None:
+        return
+    dt = float(np.max(np.asarray(params.dt)))
+    steps, time = np.asarray(observed.steps), np.asarray(observed.time, dtype=float)
+    start = np.asarray(state.time, dtype=float)[..., None]
+    expected = start + steps * dt
+    wrong = np.abs(time - expected) > 0.25 * dt
+    if np.any(wrong):
+        first = tuple(int(i) for i in np.argwhere(wrong)[0])
+        raise ValueError(
+            f"sysid: Observation sample {first} is labelled step {int(steps[first])} (t = {expected[first]:.6g} s "
+            f"at dt = {dt:g}) but its state was recorded at t = {time[first]:.6g} s; was observe()'s 'every' "
+            f"the rollout's own every? To thin an every-step rollout, pass observe(states, steps=...)")
 
 
 def _gcd(values) -> int:
@@ -697,6 +723,7 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
 
     batched = initial_state.pos.ndim == params.mass.ndim + 2
     last_step = _check_observation(observed, initial_state, batched)
+    _check_observation_times(observed, initial_state, params)
     if every is None:
         every = _gcd(observed.steps)
     elif np.any(np.asarray(observed.steps) % every):

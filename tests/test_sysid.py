@@ -320,6 +320,17 @@ def test_fit_rejects_bad_observations(free_2d):
                   applied=jax.tree_util.tree_map(lambda a: a[:10], applied))
 
 
+def test_fit_rejects_samples_labelled_with_the_wrong_every(free_2d):
+    """observe(every=k) on an every-step rollout labels sample i as step k(i+1): the states' times say otherwise."""
+    step, truth, state, applied, traj = free_2d
+    mislabelled = sysid.observe(jax.tree_util.tree_map(lambda a: a[:10], traj), every=4)
+    with pytest.raises(ValueError, match=r"labelled step 4 .* recorded at t = 0.0166667 s; was observe\(\)'s 'every'"):
+        sysid.fit(step, truth, state, mislabelled, fields="mass", optimizer=optax.adam(0.1), num_steps=1,
+                  applied=applied)
+    thinned = sysid.observe(traj, steps=range(4, PUSH_STEPS + 1, 4))  # what was meant
+    np.testing.assert_allclose(thinned.time, np.arange(4, PUSH_STEPS + 1, 4) / 60, rtol=1e-5)
+
+
 # --- recovery from noisy data (issue 4 item 5) --------------------------------------
 
 @pytest.mark.slow
