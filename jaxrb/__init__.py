@@ -15,8 +15,8 @@ from jaxrb.step import make_step, rollout
 from jaxrb.types import COLLIDING, INACTIVE, RESTING, SEPARATING, Model, Params, State, Wrench
 
 # Jitted (the Model static), because users call it outside jit: op by op, one call
-# on a 6-body scene compiled for 9.9 s against 1.0 s jitted (docs/performance.md,
-# section 25). Inside a jitted, vmapped or differentiated function it is inlined.
+# on a 6-body scene compiled for 9.9 s against 1.0 s jitted (docs/design.md,
+# 'Loops compiled whole'). Inside a jitted, vmapped or differentiated function it is inlined.
 # Plain jax.jit: JAX refuses compiler_options (rb.jit's) on a jit nested in another.
 detect_contacts = _jax.jit(_detect, static_argnums=0)
 

@@ -12,7 +12,7 @@ elementwise fusions to XLA. On other backends, or where the installed jaxlib
 does not know the option, it is plain ``jax.jit``. (XLA's older fusion
 emitters, ``xla_cpu_use_fusion_emitters=False``, run batched steps up to 2×
 faster but change float32 rounding enough to fail the float32 flip target,
-so they are not set: docs/performance.md, section 6.)
+so they are not set: docs/design.md, 'Ruled out'.)
 
 ``import jaxrb`` also sets the same options process-wide in ``XLA_FLAGS``
 (:data:`YNN_XLA_FLAG`), so a user's own ``jax.jit`` of a loop over the step
@@ -27,7 +27,7 @@ anything, so ``import jaxrb`` makes them (:func:`use_xla_cpu_flags`):
   one-world step is dozens of kernels of a few numbers each, so dispatch is
   its cost: raised, a 1 000-step rollout of one tumbling body runs in
   0.09–0.21 ms instead of 0.25–0.85 ms and its gradient in 0.9–1.1 ms
-  instead of 12 ms (docs/performance.md, section 8).
+  instead of 12 ms (docs/design.md, 'XLA and LLVM options').
 - LLVM's full unrolling limited to loops of at most 4 trips
   (``-unroll-full-max-count=4``, an LLVM option XLA passes on). At one world
   a contact scene's per-row values are loops of a few trips (a box on a
@@ -35,7 +35,7 @@ anything, so ``import jaxrb`` makes them (:func:`use_xla_cpu_flags`):
   loop vectoriser could make it one 8-wide operation. Limited, the penalty
   box drop's one-world rollout ran 1.3–1.5× as fast and its adjoint gradient
   1.5×, with batched programs as fast as before to within 10 %
-  (docs/performance.md, section 47). It is left out where a GPU or TPU
+  (docs/design.md, 'XLA and LLVM options'). It is left out where a GPU or TPU
   plugin for JAX is installed (and ``JAX_PLATFORMS`` is not ``cpu``): XLA
   passes LLVM options to its GPU code generator too, and it was measured on
   CPUs only.
@@ -49,8 +49,8 @@ already sets ``xla_backend_extra_options`` is left alone too.
 On a GPU, XLA may compute a float32 matrix product in TF32 (a 10-bit
 mantissa) unless told otherwise. The box-box narrowphase is written with
 ``@`` on 3 × 3 frames: on an H200 the penalty 10-box column sank 93 mm in
-1 s with such products and 11 mm without (docs/performance.md, section 10,
-where the rest of that fall is explained). :func:`full_precision` traces a
+1 s with such products and 11 mm without (docs/design.md, 'XLA and LLVM
+options'; the rest of that fall: 'Penalty contact'). :func:`full_precision` traces a
 function with every product at :data:`MATMUL_PRECISION`; ``make_step``'s
 step uses it. On CPU it changes nothing: XLA's CPU backend computes float32
 products in float32 either way.

@@ -94,14 +94,14 @@ def materialize(vector, params):
     once; ``params.dt > 0`` always holds (Scene.build validates dt) and is
     not batched unless dt itself is swept, where the conditional becomes a
     select and the result is the same. The penalty box drop at batch 1 024
-    ran 15 % faster with it (docs/performance.md, section 7), and the
+    ran 15 % faster with it (docs/design.md, 'Fusion boundaries'), and the
     hand-written adjoint of :mod:`jaxrb.free_body_adjoint` about 35 % at batch 1.
 
     Only on the CPU: elsewhere (``jax.lax.platform_dependent``, resolved when
     the step is lowered, so the compiler never sees the choice) the parts
     pass through unchanged, because a conditional on a GPU splits the step
     into more kernels, and there launches, not recomputed arithmetic, set
-    the time of a small step (docs/performance.md, section 34).
+    the time of a small step (docs/design.md, 'Fusion boundaries').
     """
     present = [i for i, part in enumerate(vector) if not is_zero(part)]
 

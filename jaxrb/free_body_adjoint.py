@@ -5,7 +5,7 @@ loop and transposes it (``rb.rollout`` rematerialises every step). On XLA's
 CPU backend that transpose fuses badly: each of the state's 13 cotangent
 components is computed in its own kernel, and every kernel re-derives the
 intermediates it shares with the others, so a batched gradient costs 7-10
-forward rollouts (docs/performance.md, section 11). This module writes the
+forward rollouts (docs/design.md, 'Hand-written adjoints'). This module writes the
 adjoint of the 3D semi-implicit free-body step by hand:
 
 * the forward loop is ``make_step``'s own (the trajectory is bit for bit
@@ -80,7 +80,7 @@ def _rotation(q, keep: Callable):
     rotated vector. With this and the factors :func:`_rotate` and
     :func:`_normalize_adjoint` store, the free-body backward loop compiled
     to 0.58× its arithmetic and the penalty drop's to 0.63×, and their
-    gradients took 0.83–0.93× the time (docs/performance.md, section 41).
+    gradients took 0.83–0.93× the time (docs/design.md, 'Hand-written adjoints').
     """
     return vec.stored_matrix(quat_ops.rotation_matrix_parts(q, 2.0 / vec.dot(q, q)), keep)
 
@@ -370,7 +370,7 @@ def backward_loop_inputs(first, inputs, g_outputs, every: int):
         # step, copied. Read by index inside the loop instead, a vmapped
         # trajectory is (worlds, T, ...) and every step's read strided across
         # it: the tumbler's gradient at 1 024 worlds took 1.19-1.20x as long
-        # (docs/performance.md, section 22).
+        # (docs/design.md, 'Hand-written adjoints').
         def shifted(trajectory, start):
             start = jnp.broadcast_to(jnp.asarray(start, trajectory.dtype), trajectory.shape[1:])
             return jnp.concatenate([start[None], trajectory[:-1]])

@@ -370,7 +370,7 @@ def rk4_body(model: Model, params: Params, state: State, force, torque, h) -> St
     state rather than back from ω: a read-back I Rᵀ ω rounds differently
     wherever XLA contracts its products into fused multiply-adds differently,
     and an ulp per step lost that way cost 0.03–0.2 s of flip time
-    (docs/performance.md, section 8). The stored M is used only while ω still
+    (docs/design.md, 'XLA and LLVM options'). The stored M is used only while ω still
     agrees with it to :data:`MOMENTUM_AGREEMENT` ulps, so a user who replaces
     ``angvel`` gets the M of the new ω; derivatives always flow through the
     read-back, which equals M in exact arithmetic. In 2D this is :func:`rk4`.

@@ -15,15 +15,15 @@ and joined on exit (:meth:`PlanePenalty.from_carry`).
 Why a second form: on XLA's CPU backend a step written on ``(n, 3)``
 arrays ends each stage in a concatenate whose fused loop picks a component
 per element, unvectorised, recomputing the chain behind it for each
-(docs/performance.md, sections 2 and 3). On components only the final join
+(docs/design.md, 'Layout'). On components only the final join
 remains, and the carry is stored before it: the batched box drop runs 1.8×
 the (n, 3) step's speed, in a user's loop over ``vmap(step)`` and in
-``rollout`` alike (section 50). Each substep computes each body's rotation
+``rollout`` alike (docs/design.md, 'Fusion boundaries'). Each substep computes each body's rotation
 matrix once and stores it (``components.materialize``): XLA duplicates a
 producer into every consumer, and the 8 contact rows of a box each re-derived
 it from the quaternion. It is not carried from the substep before: as a
 loop operand, each of its nine entries was computed before the loop in a
-kernel of its own, which the compile paid for (section 42).
+kernel of its own, which the compile paid for (docs/design.md, 'Fusion boundaries').
 
 Agreement with the generic step is tested (``tests/test_plane_penalty.py``):
 the same trajectories to float rounding, and the same gradients.
@@ -61,8 +61,8 @@ def supports(model: Model) -> bool:
         True for 3D penalty contact with the semi-implicit integrator where
         every pair group is one of :data:`PLANE_KINDS`. (Free bodies keep the
         generic step: its batch-1 rollout is 3.6× faster than this form's,
-        while batched this form is only 2.2× faster; docs/performance.md,
-        section 7.)
+        while batched this form is only 2.2× faster; docs/design.md,
+        'Layout'.)
     """
     return (model.dim == 3 and model.contact == "penalty" and model.integrator == "semi_implicit"
             and model.num_contacts > 0
@@ -216,7 +216,7 @@ class PlanePenalty:
     before the loop, they (with the rotation the Carry then held) were at
     least 36 of the batched box drop's 77 kernels outside it, each compiled
     apart: the drop compiled in 1.15–1.3× the time and ran no faster
-    (docs/performance.md, section 42).
+    (docs/design.md, 'Fusion boundaries').
 
     Args:
         model: a Model for which :func:`supports` holds.
@@ -365,7 +365,7 @@ class PlanePenalty:
         # Stored once: the new quaternion's 4 parts and the new ω's 3 each
         # re-derived this ω (the contact torque's sums and R I⁻¹ Rᵀ) in their
         # own fusion. The batched box drop runs 0.80-0.86x the time
-        # (docs/performance.md, section 39).
+        # (docs/design.md, 'Fusion boundaries').
         angvel = vec.materialize(angvel, params)
         # semi_implicit_position: x += h v; q by the orientation update; world L kept.
         pos = vec.add(carry.pos, vec.along(h, vel))
@@ -453,7 +453,7 @@ class PlanePenalty:
         if self.model.penalty_friction == "spring":
             # Every later stage of the row reads these: computed once (with the
             # friction inputs stored in _penalty, the batched drop runs 1.5-1.7x faster;
-            # the regularised law gains nothing from it: docs/performance.md, section 14).
+            # the regularised law gains nothing from it: docs/design.md, 'Fusion boundaries').
             arm, rel_vel, (dist,) = _stored(params, arm, rel_vel, (dist,))
         vn = vec.dot(rel_vel, normal)
         reach = params.contact_margin + params.dt * jnp.maximum(-vn, 0.0)

@@ -6,7 +6,7 @@ point's penetration, spring and damper, and the friction spring clamped to
 its Coulomb disc) and a free-body semi-implicit substep driven by it.
 Autodiff's reverse mode of that step costs 4-5 forward rollouts at one
 world; with the contact's gradient stopped it still cost 3.5, so both halves
-transpose badly (docs/performance.md, section 21). This module writes both
+transpose badly (docs/design.md, 'Hand-written adjoints'). This module writes both
 adjoints by hand, as :mod:`jaxrb.free_body_adjoint` does for free bodies:
 
 * the forward loop is the plane-penalty rollout's (its States equal
@@ -321,7 +321,7 @@ def _step_adjoint(fast, params, prepared, carry, force, torque, g_after, keep):
     saved = []
     for _ in range(model.substeps):
         # R(q) stored once: the contact rows, their adjoint and the substep's all read it
-        # (docs/performance.md, section 41).
+        # (docs/design.md, 'Hand-written adjoints').
         rotation = rotation_stored(state[2], params)  # as the forward's substep stores it
         now = dataclasses.replace(carry, pos=state[0], vel=state[1], quat=state[2], angvel=state[3], friction=held)
         record = dict(angvel=state[3], rotation=rotation)

@@ -158,7 +158,7 @@ def _impulse_substeps(model: Model):
                 # Reverse mode keeps each Jacobi pass's input and recomputes the
                 # pass, not a stack per intermediate written in the forward loop
                 # and read back: the bouncing box's gradient took 0.84-0.99x the
-                # time (docs/performance.md, section 37). The sequential passes
+                # time (docs/design.md, 'Reverse mode'). The sequential passes
                 # are rematerialised row by row instead (impulse._sweep_rows).
                 one_pass = jax.checkpoint(one_pass, prevent_cse=False)
             vel, angvel, lam = jax.lax.fori_loop(0, passes, one_pass, (pad(state.vel), pad(state.angvel), lam))
@@ -256,8 +256,8 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         adjoint: reverse mode by :mod:`jaxrb.adjoint`'s hand-written adjoint
             instead of autodiff: for 3D semi-implicit models without damping
             (``jaxrb.adjoint.supports``), free bodies (a gradient 2-4×
-            cheaper, docs/performance.md, section 11) and penalty contact
-            with spring friction against planes (section 21). The States
+            cheaper, docs/design.md, 'Hand-written adjoints') and penalty contact
+            with spring friction against planes. The States
             are the same (for penalty contact to float rounding);
             forward mode (``jax.jvp``, ``jax.jacfwd``) is not available
             through such a rollout, and ``checkpoint`` must stay False (it
@@ -291,7 +291,7 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
     # storing the step's intermediates (scalars per body component, a hundred
     # or more a step, each its own buffer written in the forward loop and read
     # in the backward one): that traffic cost more than the step itself. The
-    # forward-only program is unchanged (docs/performance.md, section 9).
+    # forward-only program is unchanged (docs/design.md, 'Reverse mode').
     advance_one = jax.checkpoint(advance_one, prevent_cse=False)
 
     def advance(current, applied_chunk):

@@ -1,7 +1,7 @@
 """The peers section's gradient scene: jaxrb's rows in free fall against the closed form, and the table.
 
 The peers (MJX, Brax) are not in the dev environment; where they are
-installed, the full run measures them (docs/performance.md, section 28).
+installed, the full run measures them (docs/design.md, 'Current figures').
 """
 
 import math

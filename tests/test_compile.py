@@ -106,7 +106,7 @@ def test_the_unroll_limit_lets_llvm_vectorise_a_box_s_eight_corners(tmp_path):
     """What the limit is for: with it, the 8 contact rows of a box on a plane compile to 8-wide operations.
 
     Without it LLVM unrolls each 8-trip row loop into scalar code first
-    (docs/performance.md, section 47), so the count of 8-wide values in the
+    (docs/design.md, 'XLA and LLVM options'), so the count of 8-wide values in the
     compiled one-world rollout's LLVM IR is what shows the limit at work.
     """
     import os
@@ -180,8 +180,8 @@ def test_every_product_of_a_step_is_traced_at_full_precision():
 
 def test_values_are_stored_through_a_conditional_only_on_the_cpu():
     # components.materialize: the conditional is the CPU's only kept fusion
-    # boundary; on a GPU it split the step into more kernels (performance.md,
-    # section 34), so lowered for CUDA the parts pass through, with no test of dt.
+    # boundary; on a GPU it split the step into more kernels (docs/design.md,
+    # 'Fusion boundaries'), so lowered for CUDA the parts pass through, with no test of dt.
     def stored(x, params):
         doubled, zero, sine = vec.materialize((2.0 * x, 0.0, jnp.sin(x)), params)
         assert zero == 0.0  # a structural zero stays one

@@ -391,7 +391,7 @@ def test_impulse_gradient_compiles_without_gathers_or_scatters(solver):
     The Jacobi passes read each row's masses, inertias and velocities by body
     index and counted contacts with a segment sum: the compiled gradient of a
     box's bounce held 48 gathers and 32 scatters, and took 18x its forward
-    where the sequential solver's took 8x (docs/performance.md, section 29).
+    where the sequential solver's took 8x (docs/design.md, 'Loops compiled whole').
     """
     scene = rb.Scene(dim=3)
     scene.add_plane(restitution=0.5)

@@ -59,7 +59,7 @@ def test_readme_python_examples_run():
     np.testing.assert_allclose(apexes[-1], 0.1 + 0.9 * 0.95 ** 2, rtol=0.02)
 
 
-LINKING_DOCUMENTS = ("README.md", "docs/guide.md", "docs/performance.md", "docs/accelerator.md")
+LINKING_DOCUMENTS = ("README.md", "docs/guide.md", "docs/design.md", "docs/accelerator.md")
 
 
 def test_readme_and_guide_links_point_at_files():
@@ -90,3 +90,24 @@ def test_links_to_sections_name_existing_headings():
             assert anchor in heading_anchors(linked), f"{document}: {target}#{anchor}"
             checked += 1
     assert checked > 10
+
+
+def test_design_notes_stay_short_and_hold_their_parts():
+    """docs/design.md says what holds now, in at most 300 lines (issue 61): the history stays in git."""
+    text = (ROOT / "docs" / "design.md").read_text()
+    assert len(text.splitlines()) <= 300
+    anchors = heading_anchors(ROOT / "docs" / "design.md")
+    for part in ("architecture", "speed-rules", "known-bounds", "ruled-out", "defaults-and-why"):
+        assert part in anchors, part
+
+
+def test_nothing_names_the_removed_performance_diary():
+    """The diary was replaced by docs/design.md; a mention of it in a document, module or test points nowhere."""
+    removed = "performance" + ".md"
+    assert not (ROOT / "docs" / removed).exists()
+    paths = [ROOT / "README.md", ROOT / "pyproject.toml"]
+    for folder, pattern in (("docs", "*.md"), ("jaxrb", "*.py"), ("tests", "*.py"), ("examples", "*.py"),
+                            ("notebooks", "*.py"), ("notebooks", "*.ipynb")):
+        paths += sorted((ROOT / folder).rglob(pattern))
+    named = [str(path.relative_to(ROOT)) for path in paths if removed in path.read_text(errors="replace")]
+    assert not named, named

@@ -17,7 +17,7 @@ SECTIONS = ("real_data", "speed_error", "hard_cases", "peers", "tumbling", "thro
 #: of each kind (the sections' own QUICK settings say which): on the 2-core host
 #: of docs/benchmarks.md it took 2.7-2.8 minutes with the peers installed (0.7 of
 #: them the peers section) and about 2 without; compiling its programs is most
-#: of it (docs/performance.md, sections 25 and 26). ``full`` took about 45 minutes
+#: of it. ``full`` took about 45 minutes
 #: (docs/benchmarks.md's section wall times); what it does not set comes from the
 #: sections' own defaults (free_body.TUMBLE_CONFIGS, gradients.DEFAULT_SETTINGS).
 SETTINGS = {

@@ -54,7 +54,7 @@ Where ``import jaxrb`` set LLVM's unroll limit (:data:`jaxrb.compile.UNROLL_LIMI
 each scene's peers run in a child process whose ``XLA_FLAGS`` are this
 process's without it (:func:`peer_process_flags`): LLVM options hold for a
 whole process, and the limit slowed Brax spring's batched drop by about 6 %
-(docs/performance.md, section 47). jaxrb's rows of the scene run here first,
+(docs/design.md, 'XLA and LLVM options'). jaxrb's rows of the scene run here first,
 then the child's; the loop threshold stays in both, as in the reports before.
 
 Settings (:data:`QUICK`, :data:`FULL`; every key starts with ``peers_``):
@@ -147,7 +147,7 @@ DROP_JAXRB = (("impulse", JAXRB_BEST["dt"], JAXRB_BEST["substeps"]), ("impulse",
 #: ≤ 1.66 mm over 5 s; twice this stiffness at 0.5 ms drifted 36 mm. Those
 #: figures counted the bottom pair four times (a broadphase bug, fixed in
 #: bc4616e); counted once it sinks 1.90 mm and drifts 0.21 mm
-#: (docs/performance.md section 15).
+#: (docs/design.md, 'Current figures').
 STACK_PENALTY_STEP = 5e-4  # s
 STACK_PENALTY_FREQUENCY = 0.03 * math.sqrt(2.0) / 1e-3  # Hz
 #: jaxrb's settings for the standing scenes, by contact model and scene: (dt,

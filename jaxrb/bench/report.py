@@ -132,7 +132,7 @@ def machine_info() -> dict:
     cpu = cpuinfo()
     processor = cpu.get("model name", platform.processor() or platform.machine())
     # Two hosts that both call themselves "AMD EPYC" ran the same commit's box
-    # drop at 11.3 M and 3.9 M body-steps/s (docs/performance.md, section 13):
+    # drop at 11.3 M and 3.9 M body-steps/s (docs/design.md, 'How to read the numbers'):
     # the clock and vector units are what tell such hosts apart.
     extensions = " ".join(flag for flag in VECTOR_FLAGS if flag in cpu.get("flags", "").split())
     try:

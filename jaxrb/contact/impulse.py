@@ -224,7 +224,7 @@ def _contact_counts(model, contacts):
 
     Summed with the pair table's static slices where it fixes the bodies: a
     scatter in the solver's loops keeps XLA's CPU backend from compiling them
-    as one function (docs/performance.md, sections 8 and 29).
+    as one function (docs/design.md, 'Loops compiled whole').
     """
     active = contacts.active.astype(contacts.dist.dtype)
     add = row_summer(model, contacts.body_a, contacts.body_b)
@@ -235,7 +235,7 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     """Fix arms, directions and effective masses for the step."""
     # Rows read body values with static slices where the pair table fixes them:
     # a gather's reverse-mode transpose is a scatter, and a loop holding a
-    # scatter is not compiled as one function (docs/performance.md, section 8).
+    # scatter is not compiled as one function (docs/design.md, 'Loops compiled whole').
     take = row_taker(model, contacts.body_a, contacts.body_b)
     pos_a, pos_b = take(state.pos, 0), take(state.pos, 1)
     arm_a, arm_b = contacts.point - pos_a, contacts.point - pos_b
@@ -280,7 +280,7 @@ def current_separation(model: Model, prep: Prepared, state: State):
 # approach speeds) read and move the bodies through the RowMaps, as the
 # sequential rows do, not through the arms and the 3x3 inverse inertias: the
 # arms' cotangent, summed in reverse over every pass, was half the Jacobi
-# gradient's time (docs/performance.md, section 30).
+# gradient's time (docs/design.md, 'Loops compiled whole').
 
 def _directions(prep: Prepared) -> tuple:
     """The rows' unit directions: (normal, *tangents), each (C, dim)."""
@@ -341,7 +341,7 @@ def _scale(impulse, vector):
 # out of and concatenated into one (C, 1 + dim) array in every pass, their
 # cotangent was built in reverse by a fusion of pads whose every column
 # evaluated every column's terms; batched, it was the passes' largest kernel
-# (docs/performance.md, section 31).
+# (docs/design.md, 'Loops compiled whole').
 
 def row_impulses(prep: Prepared, world) -> tuple:
     """(C, 1 + dim) impulses (normal, world friction vector) as (normal, *tangent components), each (C,)."""
@@ -442,7 +442,7 @@ def solve_pass(model: Model, prep: Prepared, vel, angvel, impulses, separation, 
 # At one world the same boundary cost more than it saved (1.05×), so it is put
 # in only under vmap: unbatched, its predicate is the constant True, and XLA
 # removes the conditional, leaving the one-world program as it was
-# (docs/performance.md, section 32).
+# (docs/design.md, 'Reverse mode').
 
 @jax.custom_batching.custom_vmap
 def _in_batch(h, probe):
@@ -617,7 +617,7 @@ def _sweep_rows(model: Model, prep: Prepared, update, arrays, lam, per_row=None,
     are None): the static row's velocity is zero and stays so, and carrying
     it, its maps and their cotangents through every row cost the bouncing
     box's forward a fifth of its time and its gradient about a third
-    (docs/performance.md, section 43). The rows are swept in their order, in
+    (docs/design.md, 'Loops compiled whole'). The rows are swept in their order, in
     one scan per run of rows that do or do not have a plane.
     """
     def solve_row(against_plane, index, arrays, old, prep, per_row, extra):
@@ -632,7 +632,7 @@ def _sweep_rows(model: Model, prep: Prepared, update, arrays, lam, per_row=None,
     # a stack per intermediate of every row: the sequential bouncing box's
     # gradient compiled in 21 s instead of 33 s and ran in 0.87-1.02x the
     # time, where rematerialising whole passes took 1.16-1.23x
-    # (docs/performance.md, section 37).
+    # (docs/design.md, 'Reverse mode').
     def body(against_plane):
         @partial(jax.checkpoint, prevent_cse=False)
         def one_row(arrays, row_slice):
@@ -664,14 +664,14 @@ def _sweep_rows(model: Model, prep: Prepared, update, arrays, lam, per_row=None,
 # and an inactive one's result dropped. Values and derivatives are the same
 # (an inactive row's update is discarded either way). The one-box bounce's
 # 1 000-step gradient ran about 9 % faster and compiled about 20 % sooner,
-# while the forward program keeps its cond (docs/performance.md, section 9).
+# while the forward program keeps its cond (docs/design.md, 'Loops compiled whole').
 #
 # Why a custom vmap as well: under vmap a cond on a batched predicate becomes
 # a select, and JAX first batches every operand of the cond, the row index and
 # the rows' body numbers included, so each row's reads and writes turn into
 # gathers and scatters over the worlds. The batching rule below selects
 # without batching what is not batched: the reads stay dynamic slices
-# (docs/performance.md, section 17).
+# (docs/design.md, 'Loops compiled whole').
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _guarded_row(solve_row, active, operands):
