@@ -353,8 +353,10 @@ class Scene:
             contact: ``"none"``, ``"penalty"`` or ``"impulse"``. Contact needs a
                 velocity-first integrator (``semi_implicit`` or
                 ``implicit_gyro``); the default is ``"impulse"`` when any pair
-                can touch and the integrator is one of those, else ``"none"``
-                (so ``euler`` and ``rk4`` scenes are free-body scenes).
+                can touch, else ``"none"``. A scene whose pairs can touch,
+                built with ``euler``, ``rk4`` or ``rk4_body``, must say
+                ``contact="none"`` (a ValueError says so), rather than
+                silently lose its contact.
             substeps: integration substeps per ``step`` call, >= 1. Default:
                 for impulse contact the fewest that keep the substep at or
                 below :data:`IMPULSE_SUBSTEP` (1/480 s): 8 at dt = 1/60 s, 1 at
@@ -440,8 +442,17 @@ class Scene:
             tuple((tuple(p.normal.tolist()), p.offset) for p in self._planes),
             [p.collision_filter for p in self._planes], self.dim, broadphase, broadphase_capacity)
         velocity_first = integrator in ("semi_implicit", "implicit_gyro")
+        if contact is None and pair_groups and not velocity_first:
+            # Defaulting to "none" here let a box fall through the floor (z = -19 m
+            # after 2 s) with no word: say so, and let the user choose.
+            rows = sum(len(group.body_a) for group in pair_groups)
+            raise ValueError(f"scene.build: integrator {integrator!r} cannot take contact (it needs a "
+                             f"velocity-first integrator, 'semi_implicit' or 'implicit_gyro'), but this "
+                             f"scene has {rows} pair{'s' if rows != 1 else ''} that can touch (planes or bodies); pass "
+                             f"contact='none' to simulate it without contact, or choose one of those "
+                             f"integrators")
         if contact is None:
-            contact = "impulse" if pair_groups and velocity_first else "none"
+            contact = "impulse" if pair_groups else "none"
         check_option("contact", contact, CONTACT_MODELS)
         if contact == "none":
             pair_groups = ()
