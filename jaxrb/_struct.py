@@ -40,5 +40,6 @@ def pytree_dataclass(cls):
     cls = dataclasses.dataclass(frozen=True)(cls)
     names = [field.name for field in dataclasses.fields(cls)]
     jax.tree_util.register_dataclass(cls, data_fields=names, meta_fields=[])
-    cls.replace = _replace
+    if "replace" not in cls.__dict__:  # a class may check its own changes (Params)
+        cls.replace = _replace
     return cls

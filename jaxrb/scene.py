@@ -30,7 +30,8 @@ from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties
 from jaxrb.collision.pairs import build_pair_groups
 from jaxrb.integrators import body_frame_momentum
 from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
-                         QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option)
+                         QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option,
+                         param_bounds)
 
 DEFAULT_DENSITY = 1000.0
 ALL_BITS = 0xFFFFFFFF
@@ -245,12 +246,12 @@ class Scene:
             except ShapeError as error:
                 check.fail(error.field, error.message)
             if mass is not None:
-                body_mass = check.scalar("mass", mass, low=0.0, low_open=True)
+                body_mass = check.scalar("mass", mass, **param_bounds("mass"))
                 shape_inertia = np.asarray(shape_inertia) * (body_mass / shape_mass)
             else:
                 body_mass = shape_mass
         else:
-            body_mass = check.scalar("mass", mass, low=0.0, low_open=True)
+            body_mass = check.scalar("mass", mass, **param_bounds("mass"))
             com, shape_inertia = np.zeros(dim), None
 
         if inertia is not None:
@@ -292,10 +293,9 @@ class Scene:
             name=name, shape=shape, mass=body_mass, inertia=np.asarray(shape_inertia),
             com=np.asarray(com), pos=world_com, quat=quat if dim == 3 else None,
             angle=angle if dim == 2 else None, vel=vel, angvel=angvel,
-            friction=check.scalar("friction", friction, low=0.0),
-            restitution=check.scalar("restitution", restitution, low=0.0, high=1.0),
-            linear_damping=check.scalar("linear_damping", linear_damping, low=0.0),
-            angular_damping=check.scalar("angular_damping", angular_damping, low=0.0),
+            **{name: check.scalar(name, value, **param_bounds(name)) for name, value in dict(
+                friction=friction, restitution=restitution, linear_damping=linear_damping,
+                angular_damping=angular_damping).items()},
             collision_filter=_check_filter(check, collision_category, collision_mask)))
         self._body_args.append(_given_arguments(arguments, Scene.add_body))
         return index
@@ -325,8 +325,8 @@ class Scene:
             check.fail("normal", "must be non-zero")
         self._planes.append(_Plane(
             normal=normal / length, offset=check.scalar("offset", offset) / length,
-            friction=check.scalar("friction", friction, low=0.0),
-            restitution=check.scalar("restitution", restitution, low=0.0, high=1.0),
+            friction=check.scalar("friction", friction, **param_bounds("friction")),
+            restitution=check.scalar("restitution", restitution, **param_bounds("restitution")),
             collision_filter=_check_filter(check, collision_category, collision_mask)))
         self._plane_args.append(_given_arguments(arguments, Scene.add_plane))
         return len(self._planes) - 1
@@ -418,7 +418,7 @@ class Scene:
         check = _Fields("scene.build")
         if not self._bodies:
             raise ValueError("scene.build: the scene has no bodies; add one with add_body")
-        dt = check.scalar("dt", dt, low=0.0, low_open=True)
+        dt = check.scalar("dt", dt, **param_bounds("dt"))
         check_option("integrator", integrator, INTEGRATORS)
         if orientation is not None and integrator in QUATERNION_ODE_INTEGRATORS:
             raise ValueError(f"scene.build: 'orientation' does not apply to integrator {integrator!r}, "
@@ -490,19 +490,13 @@ class Scene:
             ratio = 0.0 if penalty_damping_ratio is None else check.scalar(
                 "penalty_damping_ratio", penalty_damping_ratio, low=0.0)
             penalty_damping = 2.0 * ratio * mean_mass * omega
-        scalars = dict(
-            contact_margin=check.scalar("contact_margin", contact_margin, low=0.0),
-            bounce_threshold=check.scalar("bounce_threshold", bounce_threshold, low=0.0),
-            contact_hertz=check.scalar("contact_hertz", 0.25 / substep if contact_hertz is None
-                                       else contact_hertz, low=0.0, low_open=True),
-            contact_damping_ratio=check.scalar("contact_damping_ratio", contact_damping_ratio, low=0.0),
-            max_push_velocity=check.scalar("max_push_velocity", max_push_velocity, low=0.0),
-            penalty_stiffness=check.scalar("penalty_stiffness", penalty_stiffness, low=0.0, low_open=True),
-            penalty_damping=check.scalar("penalty_damping", penalty_damping, low=0.0),
-            penalty_width=check.scalar("penalty_width", 1e-3 if penalty_width is None else penalty_width,
-                                       low=0.0, low_open=True),
-            friction_velocity=check.scalar("friction_velocity", friction_velocity, low=0.0, low_open=True),
-            impulse_smoothing=check.scalar("impulse_smoothing", impulse_smoothing, low=0.0))
+        given = dict(contact_margin=contact_margin, bounce_threshold=bounce_threshold,
+                     contact_hertz=0.25 / substep if contact_hertz is None else contact_hertz,
+                     contact_damping_ratio=contact_damping_ratio, max_push_velocity=max_push_velocity,
+                     penalty_stiffness=penalty_stiffness, penalty_damping=penalty_damping,
+                     penalty_width=1e-3 if penalty_width is None else penalty_width,
+                     friction_velocity=friction_velocity, impulse_smoothing=impulse_smoothing)
+        scalars = {name: check.scalar(name, value, **param_bounds(name)) for name, value in given.items()}
 
         def stack(values):
             return jnp.asarray(np.stack([np.asarray(v, dtype=np.float64) for v in values]), dtype=dtype)

@@ -35,7 +35,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxrb.compile import jit
 from jaxrb.step import rollout
-from jaxrb.types import DERIVED_PARAMS, Params, State
+from jaxrb.types import DERIVED_PARAMS, Params, State, check_param_values
 
 #: Name of the one mesh axis the batch is split over.
 BATCH_AXIS = "batch"
@@ -79,8 +79,9 @@ def _batch_fields(kind: str, world, fields: dict):
                 f"batch_{kind}: field {name!r} has shape {template.shape} per world, so its values "
                 f"must have shape (B,) + a trailing part of {template.shape}, e.g. (B,) or "
                 f"(B, {', '.join(map(str, template.shape))}); got {shape}")
-        if not isinstance(array, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(array))):
-            raise ValueError(f"batch_{kind}: field {name!r} has non-finite values")
+        if not isinstance(array, jax.core.Tracer):
+            if not bool(jnp.all(jnp.isfinite(array))):
+                raise ValueError(f"batch_{kind}: field {name!r} has non-finite values")
         sizes[name] = shape[0]
         values[name] = (array, template)
     if len(set(sizes.values())) > 1:
@@ -99,6 +100,9 @@ def _batch_fields(kind: str, world, fields: dict):
         expanded = jnp.reshape(jnp.asarray(array, dtype=template.dtype),
                                (batch,) + (1,) * (template.ndim - (array.ndim - 1)) + tuple(array.shape[1:]))
         replaced[name] = jnp.broadcast_to(expanded, (batch,) + template.shape)
+        if kind == "params" and not isinstance(array, jax.core.Tracer):
+            # The ranges Scene and Params.replace check: a negative mass, e > 1, a singular inertia.
+            check_param_values("batch_params", name, replaced[name], int(np.shape(world.gravity)[-1]))
     return batched.replace(**replaced)
 
 

@@ -11,8 +11,10 @@ import dataclasses
 from typing import Any, Optional
 
 import jax
+import numpy as np
 
 from jaxrb._struct import pytree_dataclass
+from jaxrb.shapes import ShapeError, check_inertia
 
 Array = jax.Array
 
@@ -224,9 +226,116 @@ class Params:
     shape_scale: Array
     inv_inertia: Optional[Array] = None
 
+    def replace(self, **changes) -> "Params":
+        """A copy with some fields replaced, each checked as ``Scene`` checks it.
+
+        Args:
+            **changes: field name -> value, the field's shape or a batch of
+                it ((B,) + shape). A number sets the whole field (e.g.
+                ``replace(friction=0.3)``: every body's friction). Concrete
+                values are cast to the field's dtype and checked; traced ones
+                (under ``jit``, ``vmap``, ``grad``) pass unchecked.
+
+        Returns:
+            A new Params; ``self`` is unchanged.
+
+        Raises:
+            ValueError: an unknown field, a shape that is neither the field's
+                nor a batch of it, or values that are not finite or out of
+                :data:`PARAM_BOUNDS` (negative mass, restitution above 1, a
+                singular inertia), naming the field.
+        """
+        dim = int(np.shape(self.gravity)[-1])
+        checked = {}
+        for name, value in changes.items():
+            if name not in self.__dataclass_fields__:
+                raise ValueError(f"Params.replace: unknown field {name!r}; fields are "
+                                 f"{', '.join(self.__dataclass_fields__)}")
+            old = getattr(self, name)
+            if name in DERIVED_PARAMS or old is None or isinstance(value, jax.core.Tracer):
+                checked[name] = value
+                continue
+            try:
+                array = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"Params.replace: field {name!r} must be numeric, got {value!r}") from None
+            shape = tuple(np.shape(old))
+            if array.ndim == 0:
+                array = np.broadcast_to(array, shape)
+            elif array.shape != shape and array.shape[1:] != shape:
+                raise ValueError(f"Params.replace: field {name!r} must have shape {shape} (or a batch of it, "
+                                 f"(B,) + {shape}), got {array.shape}")
+            check_param_values("Params.replace", name, array, dim)
+            checked[name] = jax.numpy.asarray(array, dtype=old.dtype)
+        return dataclasses.replace(self, **checked)
+
 
 #: Params fields computed from the others, never fitted or swept.
 DERIVED_PARAMS = ("inv_inertia",)
+
+#: The values each Params field may take, element by element: ``(low, high,
+#: low_open)``, None for no bound. ``Scene``, :meth:`Params.replace` and
+#: :func:`jaxrb.sweep.batch_params` all check against this one table; fields
+#: not named here need only be finite (``inertia`` is checked as a tensor).
+PARAM_BOUNDS = {
+    "mass": (0.0, None, True), "friction": (0.0, None, False), "restitution": (0.0, 1.0, False),
+    "dt": (0.0, None, True), "linear_damping": (0.0, None, False), "angular_damping": (0.0, None, False),
+    "plane_friction": (0.0, None, False), "plane_restitution": (0.0, 1.0, False),
+    "contact_margin": (0.0, None, False), "bounce_threshold": (0.0, None, False),
+    "contact_hertz": (0.0, None, True), "contact_damping_ratio": (0.0, None, False),
+    "max_push_velocity": (0.0, None, False), "penalty_stiffness": (0.0, None, True),
+    "penalty_damping": (0.0, None, False), "penalty_width": (0.0, None, True),
+    "friction_velocity": (0.0, None, True), "impulse_smoothing": (0.0, None, False),
+    "shape_scale": (0.0, None, True),
+}
+
+
+def param_bounds(name: str) -> dict:
+    """``PARAM_BOUNDS[name]`` as keywords ``low``, ``high``, ``low_open`` (all None-free defaults if unbounded).
+
+    Args:
+        name: a Params field.
+
+    Returns:
+        A dict for a range check, e.g. ``{"low": 0.0, "high": None, "low_open": True}``.
+    """
+    low, high, low_open = PARAM_BOUNDS.get(name, (None, None, False))
+    return dict(low=low, high=high, low_open=low_open)
+
+
+def check_param_values(label: str, name: str, value, dim: int) -> None:
+    """Raise a ValueError naming ``label`` and ``name`` where ``value`` is not a valid value of that field.
+
+    Args:
+        label: who checks, e.g. ``"Params.replace"``.
+        name: the Params field.
+        value: a concrete array of the field's values (any leading batch axes).
+        dim: 2 or 3 (how ``inertia`` is laid out).
+
+    Raises:
+        ValueError: non-finite values, values outside :data:`PARAM_BOUNDS`,
+            or an inertia that no body has (:func:`jaxrb.shapes.check_inertia`).
+    """
+    array = np.asarray(value, dtype=np.float64)
+
+    def fail(bad, why):
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{label}: field {name!r} must be {why}, got {array[index]} at index {index}")
+
+    if not np.all(np.isfinite(array)):
+        fail(~np.isfinite(array), "finite")
+    bounds = param_bounds(name)
+    low, high = bounds["low"], bounds["high"]
+    if low is not None and np.any(array <= low if bounds["low_open"] else array < low):
+        fail(array <= low if bounds["low_open"] else array < low, f"{'>' if bounds['low_open'] else '>='} {low}")
+    if high is not None and np.any(array > high):
+        fail(array > high, f"<= {high}")
+    if name == "inertia":
+        for index in np.ndindex(array.shape[:-2] if dim == 3 else array.shape):
+            try:
+                check_inertia(array[index], dim)
+            except ShapeError as error:
+                raise ValueError(f"{label}: field 'inertia' at index {index} {error.message}") from None
 
 
 @pytree_dataclass

@@ -547,3 +547,25 @@ def test_contact_scene_with_an_integrator_that_cannot_take_contact_is_refused(in
         scene.build(dt=0.01, integrator=integrator, contact="impulse")
     model, _, _ = scene.build(dt=0.01, integrator=integrator, contact="none")  # said out loud: allowed
     assert model.contact == "none" and model.num_contacts == 0
+
+
+def test_params_replace_checks_as_the_scene_does():
+    """replace(mass=-1) simulated to 1e29 m and replace(friction=0.3) failed deep in collision."""
+    _, params, _ = full_scene3().build(dt=1e-3)
+    n = params.mass.shape[0]
+    for change, message in [(dict(mass=-1.0), r"'mass' must be > 0.0, got -1.0 at index \(0,\)"),
+                            (dict(restitution=np.full(n, 1.5)), "'restitution' must be <= 1.0"),
+                            (dict(dt=np.nan), "'dt' must be finite"),
+                            (dict(inertia=np.zeros((n, 3, 3))), "'inertia' at index \\(0,\\) is singular"),
+                            (dict(mass=np.ones(n + 1)), rf"'mass' must have shape \({n},\)"),
+                            (dict(masses=np.ones(n)), "unknown field 'masses'")]:
+        with pytest.raises(ValueError, match=message):
+            params.replace(**change)
+    # A number sets the whole field, in the field's dtype; a batch of the field's shape is taken.
+    replaced = params.replace(friction=0.3, penalty_stiffness=2e4)
+    np.testing.assert_allclose(replaced.friction, np.full(n, 0.3), rtol=1e-6)
+    assert replaced.friction.dtype == params.friction.dtype and replaced.penalty_stiffness.shape == ()
+    assert params.replace(mass=np.ones((4, n))).mass.shape == (4, n)
+    # Traced values pass unchecked (a fit's transforms keep them physical).
+    doubled = jax.jit(lambda p: p.replace(mass=2.0 * p.mass))(params)
+    np.testing.assert_allclose(doubled.mass, 2.0 * params.mass)

@@ -5,6 +5,7 @@ contact, dt = 1/240 s with 4 substeps): the apex after the first bounce is
 e²·h0 for restitution e and drop height h0 (measured at the sphere's bottom).
 """
 
+import dataclasses
 import json
 import math
 import os
@@ -141,6 +142,9 @@ def test_batch_params_broadcasts_into_per_body_fields():
     (dict(friction=["low", "high"]), "friction.*numeric"),
     (dict(), "at least one field"),
     (dict(inv_inertia=np.ones((2, 1, 3, 3))), "'inv_inertia' is derived"),
+    (dict(mass=-np.ones(4)), r"'mass' must be > 0.0, got -1.0 at index \(0, 0\)"),  # was accepted
+    (dict(restitution=[0.5, 1.2]), r"'restitution' must be <= 1.0, got 1.2 at index \(1, 0\)"),
+    (dict(inertia=np.ones(3)), "'inertia' at index \\(0, 0\\) is singular"),  # every entry 1: rank one
 ])
 def test_batch_params_rejects_bad_input(world, fields, message):
     params, _, _ = world
@@ -201,7 +205,10 @@ def test_sweep_rejects_bad_batches(world):
     states_batch = rb_sweep.batch_state(state, pos=np.tile([0.0, 0.0, 1.0], (3, 1)))
     with pytest.raises(ValueError, match="different batch sizes"):
         rb_sweep.sweep(apex, params_batch, states_batch)
-    ragged = params_batch.replace(friction=jnp.full((5, 1), 0.5))
+    with pytest.raises(ValueError, match="'friction' must have shape"):
+        params_batch.replace(friction=jnp.full((5, 1), 0.5))
+    # Batches put together by hand (Params.replace refuses these) are checked by sweep too.
+    ragged = dataclasses.replace(params_batch, friction=jnp.full((5, 1), 0.5))
     with pytest.raises(ValueError, match="friction"):
         rb_sweep.sweep(apex, ragged, state=state)
     with pytest.raises(ValueError, match="params_batch"):
@@ -209,7 +216,7 @@ def test_sweep_rejects_bad_batches(world):
     with pytest.raises(ValueError, match="not both"):
         rb_sweep.sweep(apex, params_batch, params=params, state=state)
     with pytest.raises(ValueError, match="dt"):
-        rb_sweep.sweep(apex, params_batch.replace(dt=params.dt), state=state)
+        rb_sweep.sweep(apex, dataclasses.replace(params_batch, dt=params.dt), state=state)
     with pytest.raises(ValueError, match="states_batch="):  # a State in the params slot
         rb_sweep.sweep(apex, states_batch, params=params)
     with pytest.raises(ValueError, match="num_steps"):
