@@ -132,7 +132,12 @@ class Model:
         stages.append(f"integrator {self.integrator}"
                       + (f" + orientation {self.orientation}" if orientation else ""))
         if self.contact != "none":
-            kinds = ", ".join(f"{g.kind} x{g.capacity}" for g in self.pair_groups)
+            # Groups of one kind differ only in geometry size (a kernel each): count them together.
+            pairs: dict[str, list] = {}
+            for group in self.pair_groups:
+                pairs.setdefault(group.kind, []).append(group.capacity)
+            kinds = ", ".join(f"{kind} x{sum(sizes)}" + (f" in {len(sizes)} kernels" if len(sizes) > 1 else "")
+                              for kind, sizes in pairs.items())
             detail = (f"{self.solver}, {self.iterations} iterations + {self.relax_iterations} relax"
                       + (", time of impact" if self.time_of_impact else "")
                       if self.contact == "impulse" else
@@ -142,7 +147,8 @@ class Model:
             stages.append(f"contact {self.contact} ({detail})")
         if self.skipped_pairs:
             stages.append("no kernel for: " + ", ".join(self.skipped_pairs))
-        return (f"jaxrb Model: {self.dim}D, {self.num_bodies} bodies ({body_text or 'none'}), "
+        bodies = f"{self.num_bodies} {'body' if self.num_bodies == 1 else 'bodies'}"
+        return (f"jaxrb Model: {self.dim}D, {bodies} ({body_text or 'none'}), "
                 f"substeps={self.substeps}; step = " + " -> ".join(stages))
 
 

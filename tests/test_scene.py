@@ -569,3 +569,19 @@ def test_params_replace_checks_as_the_scene_does():
     # Traced values pass unchecked (a fit's transforms keep them physical).
     doubled = jax.jit(lambda p: p.replace(mass=2.0 * p.mass))(params)
     np.testing.assert_allclose(doubled.mass, 2.0 * params.mass)
+
+
+def test_summary_counts_each_pair_kind_once_and_says_body():
+    """It said '1 bodies' and listed 'polygon_plane x2, polygon_plane x4' with nothing telling them apart."""
+    scene = rb.Scene(dim=2)
+    scene.add_plane()
+    scene.add_plane(normal=(1.0, 0.0), offset=-2.0)
+    scene.add_body(rb.Polygon([(0.0, 0.0), (0.2, 0.0), (0.1, 0.2)]), mass=1.0, pos=(0.0, 0.5))
+    for index in range(2):
+        scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(0.0, 0.3 * index + 0.1))
+    summary = scene.build(dt=1 / 60)[0].summary()
+    assert summary.count("polygon_plane") == 1 and "polygon_plane x6 in 2 kernels" in summary
+    assert "3 bodies (2 Box, 1 Polygon)" in summary
+    one = rb.Scene(dim=3)
+    one.add_body(rb.Sphere(0.1), mass=1.0)
+    assert "3D, 1 body (1 Sphere)" in one.build(dt=0.01)[0].summary()
