@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 import warnings
 from typing import Callable, Mapping, NamedTuple, Optional, Sequence, Union
 
@@ -691,7 +692,8 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
             inputs instead of T; pays when observations are sparse, ``every`` > 1).
         transforms: ``{name: name-or-Transform}`` overriding :data:`DEFAULT_TRANSFORMS`.
         tol, patience: early stopping (module docs); ``tol=None`` runs all steps.
-        log_every: print the loss every this many updates (and at the end).
+        log_every: print the loss every this many updates (and at the end),
+            and say when the first update's compile starts and ends.
         callback: ``callback(step, loss, params)`` called every
             ``callback_every`` updates with the update count, the loss (float)
             and the Params at that point.
@@ -763,9 +765,14 @@ def fit(step: Callable, params: Params, initial_state: State, observed: Observat
     u = unconstrained
     updates_done = 0
     for k in range(num_steps + 1):
+        if k == 0 and log_every is not None:  # the first call compiles: tens of seconds for long rollouts
+            print_fn(f"sysid: compiling the loss gradient of a {rollout_steps}-step rollout…")
+            clock = time.perf_counter()
         # The last pass only evaluates the loss at the final parameters.
         new_u, new_opt_state, value = update(u, opt_state, params, initial_state, observed, applied)
         value = float(value)
+        if k == 0 and log_every is not None:
+            print_fn(f"sysid: compiled and took the first step in {time.perf_counter() - clock:.1f} s")
         losses.append(value)
         if not math.isfinite(value):
             warnings.warn(f"sysid.fit: loss became {value} after {k} updates; stopping and returning "

@@ -32,6 +32,8 @@ def test_demo_runs(capsys, tmp_path):
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "flip times" in out and "range error" in out and "resting height" in out
+    # float32's flip: rk4's error is shown beside rk4_body's, named as the float32 choice.
+    assert "Intermediate-axis flip (rk4_body, float32" in out and "the float32 choice" in out
     assert (tmp_path / "box_drop.png").stat().st_size > 1000
     assert (tmp_path / "box_drop.gif").stat().st_size > 1000
 

@@ -237,7 +237,10 @@ def test_fit_recovers_mass_and_inertia_2d_calls_back_and_compiles_once(free_2d):
     assert [k for k, _, _ in calls] == list(range(0, 301, 25))
     assert all(isinstance(p, rb.Params) for _, _, p in calls)
     assert calls[0][1] == result.losses[0] and calls[-1][1] == result.losses[300]
-    assert len(lines) == 4 and "loss" in lines[-1]
+    # The compile is announced (a long rollout's takes tens of seconds), then a loss line every 100.
+    assert lines[0] == "sysid: compiling the loss gradient of a 40-step rollout…"
+    assert lines[1].startswith("sysid: compiled and took the first step in ")
+    assert len(lines) == 6 and all("loss" in line for line in lines[2:])
     assert result.losses.shape == (301,) and result.steps == 300
     assert result.losses[result.best_step] == result.losses.min()
     # Noise-free data: both recovered to 1e-4.
