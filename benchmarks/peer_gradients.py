@@ -1,12 +1,12 @@
 """Gradients through contact side by side: jaxrb and the peers that differentiate (MJX, Brax).
 
-The scene is the peers' box drop (:mod:`jaxrb.bench.peers`: a 0.2 m box,
+The scene is the peers' box drop (:mod:`benchmarks.peers`: a 0.2 m box,
 1 kg, released from rest with its centre at 0.5 m above a plane, μ = 0.5),
 every engine at h = 2 ms for T steps (T = 1 000: the fall, the landing at
 about step 143, then rest), float32, in one world and, for jaxrb's penalty
 adjoint and Brax spring (the one peer whose gradient is finite here), in a
 batch of worlds that differ by the drop benchmark's tiny shifts
-(:func:`jaxrb.bench.peers.world_shifts`), the loss their mean. Each engine
+(:func:`benchmarks.peers.world_shifts`), the loss their mean. Each engine
 differentiates the same loss of the motion, the mean over the T steps of the squares of the
 position, the linear and angular velocity and the quaternion's vector part
 (:func:`jaxrb.bench.gradients.trajectory_loss`; a mean of squares of the
@@ -45,7 +45,8 @@ from typing import Sequence
 import jax
 import jax.numpy as jnp
 
-from jaxrb.bench import contact, gradients, peers
+from benchmarks import peers
+from jaxrb.bench import contact, gradients
 from jaxrb.bench.report import fmt_fixed, fmt_si, markdown_table
 from jaxrb.bench.timing import compile_jitted, time_alternated
 
@@ -75,7 +76,7 @@ def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_step
     """Compile and time ``loss`` and its gradient; the row's run time is the gradient's.
 
     Args:
-        engine, setting: as :class:`jaxrb.bench.peers.PeerRow` names them.
+        engine, setting: as :class:`benchmarks.peers.PeerRow` names them.
         wrt: short text, what the gradient is taken with respect to.
         loss: ``loss(*args) -> ()``.
         args: its arguments.

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxrb.bench import peer_gradients, peers
+from benchmarks import peer_gradients, peers
 
 GRAVITY = 9.81
 STEPS = 20  # 40 ms of fall from 0.5 m: the box is still 0.39 m above the plane

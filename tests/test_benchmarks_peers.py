@@ -11,7 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from jaxrb.bench import contact, peers
+from benchmarks import peers
+from jaxrb.bench import contact
 
 GRAVITY = 9.81
 TINY = dict(peers_scenes=("drop", "flip"), peers_engines=peers.ENGINES, peers_drop_batch=2,

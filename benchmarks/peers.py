@@ -41,7 +41,7 @@ peer's own scene API (Jax2D, pymunk):
 * **gradient**: the drop's gradient in one world (and, against Brax spring,
   in a batch of worlds), jaxrb against the peers
   that differentiate (MJX, Brax): forward and gradient time, whether every
-  entry is finite, and the loss (:mod:`jaxrb.bench.peer_gradients`).
+  entry is finite, and the loss (:mod:`benchmarks.peer_gradients`).
 
 Timing is :func:`jaxrb.bench.timing.time_jitted` for everything jitted
 (compile apart, then the median of calls after a warm-up, with
@@ -983,12 +983,16 @@ def _run_in_child(settings: dict, flags: str) -> Tuple[List[PeerRow], Dict[str, 
         with open(path, "wb") as handle:
             pickle.dump(settings, handle)
         code = ("import pickle, sys\n"
-                "from jaxrb.bench import peers\n"
+                "from benchmarks import peers\n"
                 "settings = pickle.load(open(sys.argv[1], 'rb'))\n"
                 "log = lambda text: print(text, file=sys.stderr, flush=True)\n"
                 "result = peers.run_peers(settings, log)\n"
                 "pickle.dump(result, open(sys.argv[1], 'wb'))\n")
-        done = subprocess.run([sys.executable, "-c", code, path], env=dict(os.environ, XLA_FLAGS=flags),
+        # The checkout's root on the path, so that the child imports this folder from any working directory.
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        path_list = os.pathsep.join([root] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else []))
+        done = subprocess.run([sys.executable, "-c", code, path],
+                              env=dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=path_list),
                               stdout=subprocess.DEVNULL, stderr=None)
         if done.returncode != 0:
             scenes = ", ".join(settings["peers_scenes"])
@@ -1095,7 +1099,7 @@ def _run_here(settings: dict, modules: dict, skipped: Dict[str, str],
             if settings["peers_flip_mjx"]:
                 attempt("mjx", "flip", lambda hh=h: mjx_flip(modules["mjx"], hh, horizon, reference, settings))
     if "gradient" in scenes:
-        from jaxrb.bench import peer_gradients  # it builds on this module
+        from benchmarks import peer_gradients  # it builds on this module
 
         steps = settings["peers_gradient_steps"]
         for model, method in peer_gradients.JAXRB_SETTINGS:
@@ -1241,7 +1245,7 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
                   "the flip times (sign changes of body-frame ω_y, linear interpolation between steps) "
                   "against `jaxrb.analytic.flip_times`; inf = flips missing.", "", flip_table(rows)]
     if any(r.scene == "gradient" for r in rows):
-        from jaxrb.bench import peer_gradients
+        from benchmarks import peer_gradients
 
         parts += [f"**{SCENE_TITLES['gradient']}**: the box drop at h = 2 ms for "
                   f"{settings['peers_gradient_steps']} steps, float32, in one world and in a batch of worlds "

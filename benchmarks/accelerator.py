@@ -1,8 +1,8 @@
 """Throughput on the default JAX device at growing batch: how far vmap scales.
 
-``python -m jaxrb.bench.accelerator [--quick] [--out DIR] [--only ROWS ...]``
+``python -m benchmarks.accelerator [--quick] [--out DIR] [--only ROWS ...]``
 runs the benchmark scenes of :mod:`jaxrb.bench.free_body`,
-:mod:`jaxrb.bench.peers` and :mod:`jaxrb.bench.gradients` on whatever device
+:mod:`benchmarks.peers` and :mod:`jaxrb.bench.gradients` on whatever device
 JAX picks (a GPU when jaxlib has one, else the CPU) at batches up to
 131 072 worlds, and writes ``DIR/accelerator.md``; ``--only`` picks kinds of
 row (:data:`ROW_KINDS`), so a short lease can time a few before and after a
@@ -39,7 +39,8 @@ from typing import Callable, List, Sequence
 
 import jax
 
-from jaxrb.bench import free_body, gradients, peers
+from benchmarks import peers
+from jaxrb.bench import free_body, gradients
 from jaxrb.bench.report import Report, bullet_list, fmt_fixed, fmt_si, machine_info, markdown_table
 
 #: Worlds per row. ``quick`` is for checking the module on a CPU in seconds.
@@ -160,7 +161,7 @@ def run(settings: dict, log=None) -> str:
 
 
 def main(argv: Sequence[str] = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m jaxrb.bench.accelerator", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.accelerator", description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny batches and horizons, to check the module")
     parser.add_argument("--out", default="bench_out", metavar="DIR", help="where accelerator.md goes")
     parser.add_argument("--only", nargs="+", choices=ROW_KINDS, default=list(ROW_KINDS), metavar="ROWS",
