@@ -26,6 +26,7 @@ from benchmarks.scenes import (ENGINES, FRICTION, HALF, PEER_STEP, PYRAMID_TOP, 
                                time_jax, tumbler_mjcf, world_shifts, x64)
 from jaxrb.bench import free_body
 
+
 def load_peers(engines: Sequence[str]) -> Tuple[Dict[str, object], Dict[str, str]]:
     """Import the requested peers; return ``(modules, skipped)``.
 

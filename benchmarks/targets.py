@@ -17,6 +17,7 @@ from typing import List, Optional, Sequence
 from benchmarks.scenes import LOOP_SUFFIX, PYMUNK_TARGET_BATCH, PeerRow, ratio
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 
+
 @dataclasses.dataclass
 class Target:
     """One target (issues 6 and 60): what was measured and whether it was met (``None``: not measured)."""

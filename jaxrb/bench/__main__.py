@@ -35,12 +35,13 @@ MOVED_TO = "python -m benchmarks"
 
 #: What each mode runs. ``quick`` shows every section at one or two settings
 #: of each kind (the sections' own QUICK settings say which): on the 2-core host
-#: of docs/benchmarks.md the quick run, then with the peers section, took
-#: 2.7-2.8 minutes with the peers installed (0.7 of them the peers section) and
-#: about 2 without; compiling its programs is most of it (docs/performance.md,
-#: sections 25 and 26). ``full`` took about 45 minutes with the peers
-#: (docs/benchmarks.md's section wall times); what it does not set comes from the
-#: sections' own defaults (free_body.TUMBLE_CONFIGS, gradients.DEFAULT_SETTINGS).
+#: of docs/benchmarks.md it took 2.7-2.8 minutes with the peers installed (0.7 of
+#: them the peers section) and about 2 without, measured when this command still
+#: ran the peers section (python -m benchmarks runs it now); compiling its
+#: programs is most of it (docs/performance.md, sections 25 and 26). ``full``
+#: took about 45 minutes with the peers (docs/benchmarks.md's section wall
+#: times); what it does not set comes from the sections' own defaults
+#: (free_body.TUMBLE_CONFIGS, gradients.DEFAULT_SETTINGS).
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60,), tumble_horizon=6.0, repeats=3,
                   tumble_configs=(("semi_implicit", "exp_map"), ("implicit_gyro", "exp_map"), ("rk4", None),
@@ -100,8 +101,8 @@ def parse_args(argv=None, sections: Sequence[str] = SECTIONS, prog: str = "pytho
             f"DIR/report.md. Other engines side by side (peers, real_data): {MOVED_TO}, from a source "
             "checkout with the peers extra."))
     parser.add_argument("--quick", action="store_true",
-                        help="one or two configurations of each kind and shorter horizons (on 2 cores about 2 minutes "
-                             "for jaxrb's sections, under 3 with the peers'; mostly compiling)")
+                        help="one or two configurations of each kind and shorter horizons (under 3 minutes on 2 "
+                             "cores, mostly compiling)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="directory for report.md (default: bench_out)")
     parser.add_argument("--only", nargs="+", default=list(sections), metavar="SECTION",
