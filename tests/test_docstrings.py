@@ -19,7 +19,8 @@ What is public (walked by :func:`public_symbols`, pure introspection, no tracing
 Internal, unless a name from them is in ``jaxrb.__all__``: ``jaxrb.bench``,
 ``jaxrb.collision.*``, ``jaxrb.contact.*``, ``jaxrb.cli``, ``jaxrb.runner``,
 ``jaxrb.demo`` and ``jaxrb._struct``. They still deserve docstrings, but this
-test does not hold them to the rule.
+test does not hold them to the rule; nor the repository's ``benchmarks/``
+folder, which is not part of the package.
 
 The rule (:func:`docstring_problems`), for each public symbol:
 

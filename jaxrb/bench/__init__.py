@@ -1,5 +1,8 @@
 """Benchmarks: speed against error, and throughput (``python -m jaxrb.bench``).
 
+* :mod:`jaxrb.bench.speed_error`: error against the closed form against cost
+  for every configuration (:mod:`jaxrb.bench.pareto` draws the front).
+* :mod:`jaxrb.bench.hard_cases`: stability cases, pass or fail.
 * :mod:`jaxrb.bench.timing`: compile time apart from median run time of
   jitted functions (block_until_ready), shared by every benchmark.
 * :mod:`jaxrb.bench.report`: Markdown tables, number formats, machine header.
@@ -13,7 +16,11 @@
   models' smoothing knobs on the bounce and slide scenes.
 
 Importing this package has no side effects; the command line enables JAX's
-float64 mode for its own process.
+float64 mode for its own process. Nothing here imports another engine: jaxrb
+beside MuJoCo, MJX, Brax, Jax2D, pymunk and Bullet, the generator of the
+committed report (docs/benchmarks.md) and the GPU runs are in the
+repository's ``benchmarks/`` folder (``python -m benchmarks``), which builds
+on this package and is not part of it.
 """
 
 from jaxrb.bench.report import Report, fmt_fixed, fmt_sci, fmt_si, fmt_step, machine_info, \

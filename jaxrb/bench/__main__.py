@@ -1,25 +1,47 @@
 """Command line: ``python -m jaxrb.bench [--quick] [--out DIR] [--only SECTION ...]``.
 
 Prints a Markdown report to stdout (progress goes to stderr) and writes it to
-``DIR/report.md`` (default ``bench_out``).
+``DIR/report.md`` (default ``bench_out``). The sections (:data:`SECTIONS`) are
+jaxrb's own: speed against error on scenes with closed forms, the hard cases,
+integrator accuracy on a tumbling body, free-body and contact throughput,
+gradient memory and time, and the smoothing knobs. None of them imports
+another engine.
+
+The side-by-side runs with other engines (``peers``: MuJoCo, MJX, Brax, Jax2D,
+pymunk; ``real_data``: the measured cube tosses beside MuJoCo and Bullet), the
+generator of the committed report (docs/benchmarks.md) and the GPU runs live
+outside the package, in the repository's ``benchmarks/`` folder:
+``python -m benchmarks`` from a source checkout, with the ``peers`` extra
+(``pip install -e ".[peers]"``), runs every section of this report and theirs.
+Asked for one of those sections (:data:`MOVED`), this command stops with an
+error that names ``python -m benchmarks``; it does not run them itself: a
+wheel of jaxrb has no ``benchmarks/`` folder, and the package imports nothing
+from it (``benchmarks`` builds on this module through :func:`main`'s
+``extra`` sections).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
+from typing import Callable, Dict, Optional, Sequence
 
-SECTIONS = ("real_data", "speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
-            "smoothing")
+SECTIONS = ("speed_error", "hard_cases", "tumbling", "throughput", "contact", "gradients", "smoothing")
+#: Sections that moved to ``benchmarks/`` (they import other engines); ``--only`` names them in its error.
+MOVED = ("peers", "real_data")
+MOVED_TO = "python -m benchmarks"
 
 #: What each mode runs. ``quick`` shows every section at one or two settings
 #: of each kind (the sections' own QUICK settings say which): on the 2-core host
 #: of docs/benchmarks.md it took 2.7-2.8 minutes with the peers installed (0.7 of
-#: them the peers section) and about 2 without; compiling its programs is most
-#: of it. ``full`` took about 45 minutes
-#: (docs/benchmarks.md's section wall times); what it does not set comes from the
-#: sections' own defaults (free_body.TUMBLE_CONFIGS, gradients.DEFAULT_SETTINGS).
+#: them the peers section) and about 2 without, measured when this command still
+#: ran the peers section (python -m benchmarks runs it now); compiling its
+#: programs is most of it. ``full``
+#: took about 45 minutes with the peers (docs/benchmarks.md's section wall
+#: times); what it does not set comes from the sections' own defaults
+#: (free_body.TUMBLE_CONFIGS, gradients.DEFAULT_SETTINGS).
 SETTINGS = {
     "quick": dict(tumble_steps=(1 / 60,), tumble_horizon=6.0, repeats=3,
                   tumble_configs=(("semi_implicit", "exp_map"), ("implicit_gyro", "exp_map"), ("rk4", None),
@@ -37,25 +59,87 @@ SETTINGS = {
 }
 
 
-def parse_args(argv=None):
+@dataclasses.dataclass(frozen=True)
+class Section:
+    """A report section that :func:`main` runs beside its own (``benchmarks/`` adds the peers' this way).
+
+    Attributes:
+        title: the section's heading, without its number.
+        info: its line in the report's "Machine and settings" list.
+        run: ``run(quick, out_dir, log) -> (markdown, results)``: ``quick`` is
+            True for ``--quick``, ``out_dir`` is ``--out`` and ``log(text)``
+            writes a progress line.
+    """
+
+    title: str
+    info: str
+    run: Callable
+
+
+def parse_args(argv=None, sections: Sequence[str] = SECTIONS, prog: str = "python -m jaxrb.bench",
+               description: Optional[str] = None):
+    """Read the command line.
+
+    Args:
+        argv: arguments without the program name (None: ``sys.argv[1:]``).
+        sections: the section names ``--only`` accepts, in report order.
+        prog: the program name that help and errors show.
+        description: the help's description (None: this command's).
+
+    Returns:
+        The parsed ``argparse.Namespace`` (``quick``, ``out``, ``only``). A
+        section of :data:`MOVED` that ``sections`` lacks, or any other unknown
+        name, exits with status 2 and a message (the moved ones name
+        ``python -m benchmarks``).
+    """
     parser = argparse.ArgumentParser(
-        prog="python -m jaxrb.bench",
-        description="jaxrb benchmarks: speed against error on scenes with closed forms, "
-                    "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and "
-                    "time, and the smoothing knobs' gradient bias and spread. Prints Markdown and writes "
-                    "DIR/report.md.")
+        prog=prog,
+        description=description or (
+            "jaxrb benchmarks: speed against error on scenes with closed forms, the hard cases, "
+            "integrator accuracy on a tumbling body, free-body and contact throughput, gradient memory and "
+            "time, and the smoothing knobs' gradient bias and spread. Prints Markdown and writes "
+            f"DIR/report.md. Other engines side by side (peers, real_data): {MOVED_TO}, from a source "
+            "checkout with the peers extra."))
     parser.add_argument("--quick", action="store_true",
-                        help="one or two configurations of each kind and shorter horizons (under 3 minutes on 2 cores, "
-                             "mostly compiling)")
+                        help="one or two configurations of each kind and shorter horizons (under 3 minutes on 2 "
+                             "cores, mostly compiling)")
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="directory for report.md (default: bench_out)")
-    parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS),
-                        metavar="SECTION", help=f"run only these sections: {', '.join(SECTIONS)}")
-    return parser.parse_args(argv)
+    parser.add_argument("--only", nargs="+", default=list(sections), metavar="SECTION",
+                        help=f"run only these sections: {', '.join(sections)}")
+    args = parser.parse_args(argv)
+    moved = [name for name in args.only if name in MOVED and name not in sections]
+    if moved:
+        parser.error(f"{', '.join(moved)}: the sections that run other engines moved out of the jaxrb "
+                     f"package; from a jaxrb source checkout with the peers extra "
+                     f"(pip install -e \".[peers]\") run: {MOVED_TO} --only {' '.join(moved)}")
+    unknown = [name for name in args.only if name not in sections]
+    if unknown:
+        parser.error(f"argument --only: invalid choice: {', '.join(map(repr, unknown))} "
+                     f"(choose from {', '.join(sections)})")
+    return args
 
 
-def main(argv=None) -> int:
-    args = parse_args(argv)
+def main(argv=None, *, sections: Sequence[str] = SECTIONS, extra: Optional[Dict[str, Section]] = None,
+         prog: str = "python -m jaxrb.bench", description: Optional[str] = None) -> int:
+    """Run the sections, print the report and write ``DIR/report.md``.
+
+    Args:
+        argv: arguments without the program name (None: ``sys.argv[1:]``).
+        sections: every section's name in report order: :data:`SECTIONS` and
+            the keys of ``extra``.
+        extra: sections from outside this module by name (``benchmarks/``'s
+            peers and real data); their ``info`` lines go after this module's.
+        prog, description: for the help and errors (see :func:`parse_args`).
+
+    Returns:
+        0 (bad arguments exit with status 2 before anything runs).
+    """
+    extra = dict(extra or {})
+    missing = [name for name in sections if name not in SECTIONS and name not in extra]
+    if missing:
+        raise ValueError(f"sections {missing} are neither jaxrb's own nor in extra")
+    args = parse_args(argv, sections, prog, description)
     import jax
 
     # float64 for the accuracy runs; float32 runs ask for their dtype explicitly.
@@ -105,10 +189,7 @@ def main(argv=None) -> int:
                         f"{speed_error_settings['speed_error_batch']}"),
         "hard_cases": ("tallest 3D stack, 2D pyramid, mass ratios, fastest impact, fast spin, "
                        "overlap recovery, long rest (small sizes with --quick)"),
-        "peers": ("the same scenes in each installed peer (pip install -e \".[peers]\"), "
-                  "same run, ratios jaxrb / peer and the issue's targets"),
-        "real_data": ("400 measured cube tosses, half fitted, half scored; MuJoCo and Bullet with the "
-                      "publishers' parameters (examples/cube_tosses)"),
+        **{name: section.info for name, section in extra.items()},
         "timing": (f"compile = trace + lower + compile; run = median of up to "
                    f"{settings['repeats']} calls after one warm-up, block_until_ready"),
     })
@@ -131,16 +212,6 @@ def main(argv=None) -> int:
         case_settings = hard_cases.QUICK if args.quick else hard_cases.FULL
         return hard_cases.hard_cases_section({**case_settings, "out_dir": args.out}, log)
 
-    def run_peers():
-        from jaxrb.bench import peers
-
-        return peers.peers_section(peers.QUICK if args.quick else peers.FULL, log)
-
-    def run_real_data():
-        from jaxrb.bench import real_data
-
-        return real_data.real_data_section(real_data.QUICK if args.quick else real_data.FULL, log)
-
     def run_contact():
         from jaxrb.bench import contact
 
@@ -152,10 +223,8 @@ def main(argv=None) -> int:
         return gradients.gradients_section(settings, log)
 
     runners = {
-        "real_data": ("Real data: measured cube tosses beside MuJoCo and Bullet", run_real_data),
         "speed_error": ("Speed against error", run_speed_error),
         "hard_cases": ("Hard cases: stability, pass or fail", run_hard_cases),
-        "peers": ("Peers side by side: MuJoCo, MJX, Brax, Jax2D, pymunk", run_peers),
         "tumbling": ("Torque-free tumbling in detail (intermediate-axis flip)", lambda: free_body.tumbling_section(
             settings["tumble_steps"], settings["tumble_horizon"], repeats=settings["repeats"], log=log,
             configs=settings["tumble_configs"])),
@@ -166,9 +235,11 @@ def main(argv=None) -> int:
         "gradients": ("Gradient memory and time", run_gradients),
         "smoothing": ("Smoothing knobs: gradient bias and spread",
                       lambda: smoothing.smoothing_section(settings, log=log, out_dir=args.out)),
+        **{name: (section.title, lambda run=section.run: run(args.quick, args.out, log))
+           for name, section in extra.items()},
     }
     with Stopwatch() as total:
-        for number, name in enumerate([name for name in SECTIONS if name in args.only], start=1):
+        for number, name in enumerate([name for name in sections if name in args.only], start=1):
             title, run = runners[name]
             section(f"{number}. {title}", run)
     try:

@@ -39,7 +39,7 @@ mass) must stay slow against every body's contact modes. At h = 1 ms a 10-box
 stand (1.1 mm deepest overlap), but the column's top box rocks by millimetres,
 and with a spring twice as stiff it drifted 2–24 mm in 1 s: a box rocking on
 its corners is the fastest mode. At h = 0.5 ms that stiffer spring holds the
-column to 0.1 mm (jaxrb.bench.peers, ``STACK_PENALTY_STEP``); a 20-box 2D
+column to 0.1 mm (benchmarks/scenes.py, ``STACK_PENALTY_STEP``); a 20-box 2D
 column does not settle (its long-wave modes are barely damped under the
 damper cap, and the top boxes are thrown), and a 100 kg box on a 1 kg box
 blows up (the spring sized on the mean mass of 50 kg is far too stiff for the

@@ -7,7 +7,7 @@ training half and a validation half. jaxrb's model
 the training half with ``jaxrb.fit_data.fit_measured`` (short horizons,
 Levenberg–Marquardt), timed with its compile, and every model is scored on
 the validation half by the published protocol (:mod:`jaxrb.evaluate`). The
-peers use the publishers' fitted parameters (:mod:`jaxrb.bench.toss_peers`)
+peers use the publishers' fitted parameters (:mod:`benchmarks.toss_peers`)
 from the same free-flight initial states. The noise floor and a fit on each
 half of the training set (do the two agree within their standard errors?)
 follow.
@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxrb.bench.report import markdown_table
 
-REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FOLDER = os.path.join(REPO, "examples", "cube_tosses")
 DEFAULT_DATA = os.path.join(FOLDER, "cube_tosses.npz")
 SCENE = os.path.join(FOLDER, "cube.json")
@@ -48,7 +48,7 @@ def _row(name, scores, seconds=None):
 def real_data_section(settings: dict, log=print):
     """Run the section; return ``(markdown, results)``."""
     from jaxrb import evaluate
-    from jaxrb.bench import toss_peers
+    from benchmarks import toss_peers
     from jaxrb.fit_data import build_for_data, fit_measured
     from jaxrb.initial_state import estimate_initial_states
     from jaxrb.measured import load_trajectories

@@ -1,14 +1,15 @@
 """Throughput on the default JAX device at growing batch: how far vmap scales.
 
-``python -m jaxrb.bench.accelerator [--quick] [--out DIR] [--only ROWS ...]``
-runs the benchmark scenes of :mod:`jaxrb.bench.free_body`,
-:mod:`jaxrb.bench.peers` and :mod:`jaxrb.bench.gradients` on whatever device
-JAX picks (a GPU when jaxlib has one, else the CPU) at batches up to
-131 072 worlds, and writes ``DIR/accelerator.md``; ``--only`` picks kinds of
-row (:data:`ROW_KINDS`), so a short lease can time a few before and after a
-change. It is separate from ``python -m jaxrb.bench``
-because its batches are sized for an accelerator: on two CPU cores the full
-run takes hours. Nothing in jaxrb depends on a GPU; this only measures one.
+``python -m benchmarks.accelerator [--quick] [--out DIR] [--only ROWS ...]``
+runs jaxrb on the benchmark scenes of :mod:`jaxrb.bench.free_body`,
+:mod:`benchmarks.jaxrb_runs` (the peers section's scenes) and
+:mod:`jaxrb.bench.gradients` on whatever device JAX picks (a GPU when jaxlib
+has one, else the CPU) at batches up to 131 072 worlds, and writes
+``DIR/accelerator.md``; ``--only`` picks kinds of row (:data:`ROW_KINDS`), so
+a short lease can time a few before and after a change. It is separate from
+``python -m benchmarks`` because its batches are sized for an accelerator: on
+two CPU cores the full run takes hours. It runs no other engine. Nothing in
+jaxrb depends on a GPU; this only measures one.
 
 Rows (float32, compile time apart, median of repeated calls with
 ``block_until_ready``, as :mod:`jaxrb.bench.timing` times everything):
@@ -39,7 +40,8 @@ from typing import Callable, List, Sequence
 
 import jax
 
-from jaxrb.bench import free_body, gradients, peers
+from benchmarks import jaxrb_runs, scenes
+from jaxrb.bench import free_body, gradients
 from jaxrb.bench.report import Report, bullet_list, fmt_fixed, fmt_si, machine_info, markdown_table
 
 #: Worlds per row. ``quick`` is for checking the module on a CPU in seconds.
@@ -84,28 +86,28 @@ def measurements(settings: dict) -> List[Callable[[], list]]:
                     steps, "finite")
 
     def drop(batch):
-        row = peers.jaxrb_drop("penalty", peers.PEER_STEP, 1, batch, steps, peer)
+        row = jaxrb_runs.jaxrb_drop("penalty", scenes.PEER_STEP, 1, batch, steps, peer)
         return _row("box drop", row.setting, batch, row.num_bodies, row.compile_s, row.run_s, steps,
                     _height_check(row))
 
     def standing(run, batch, seconds):
         row = run("penalty", batch, seconds, peer)
         check = ("stands" if row.metrics["stands"] else "FALLS") + f", sink {row.metrics['sink'] * 1e3:.2f} mm"
-        return _row(peers.SCENE_TITLES[row.scene], row.setting, batch, row.num_bodies, row.compile_s,
+        return _row(scenes.SCENE_TITLES[row.scene], row.setting, batch, row.num_bodies, row.compile_s,
                     row.run_s, row.num_steps, check)
 
     def impulse_drop(batch):
-        best = peers.JAXRB_BEST
-        row = peers.jaxrb_drop("impulse", best["dt"], best["substeps"], batch, settings["impulse_steps"], peer)
+        best = scenes.JAXRB_BEST
+        row = jaxrb_runs.jaxrb_drop("impulse", best["dt"], best["substeps"], batch, settings["impulse_steps"], peer)
         return _row("box drop", row.setting, batch, row.num_bodies, row.compile_s, row.run_s,
                     settings["impulse_steps"], _height_check(row))
 
     for integrator in ("semi_implicit", "rk4_body"):
         thunks += [lambda i=integrator, b=batch: free(i, b) for batch in settings["free_batches"]]
     thunks += [lambda b=batch: drop(b) for batch in settings["drop_batches"]]
-    thunks += [lambda b=batch: standing(peers.jaxrb_stack, b, settings["standing_seconds"])
+    thunks += [lambda b=batch: standing(jaxrb_runs.jaxrb_stack, b, settings["standing_seconds"])
                for batch in settings["column_batches"]]
-    thunks += [lambda b=batch: standing(peers.jaxrb_pyramid, b, settings["standing_seconds"])
+    thunks += [lambda b=batch: standing(jaxrb_runs.jaxrb_pyramid, b, settings["standing_seconds"])
                for batch in settings["pyramid_batches"]]
     thunks += [lambda b=batch: impulse_drop(b) for batch in settings["impulse_batches"]]
     return thunks
@@ -160,7 +162,7 @@ def run(settings: dict, log=None) -> str:
 
 
 def main(argv: Sequence[str] = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m jaxrb.bench.accelerator", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.accelerator", description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny batches and horizons, to check the module")
     parser.add_argument("--out", default="bench_out", metavar="DIR", help="where accelerator.md goes")
     parser.add_argument("--only", nargs="+", choices=ROW_KINDS, default=list(ROW_KINDS), metavar="ROWS",

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxrb.bench import peer_gradients, peers
+from benchmarks import peer_gradients, peers, scenes
 
 GRAVITY = 9.81
 STEPS = 20  # 40 ms of fall from 0.5 m: the box is still 0.39 m above the plane
@@ -44,11 +44,11 @@ def test_each_jaxrb_row_differentiates_the_stated_loss(scene):
         ("jaxrb", "penalty, 2 ms, adjoint", BATCH)]
     # Batched, the loss is the worlds' mean: the heights' entries sum to the mean of each world's
     # closed form, whose worlds start 0-1 mm higher.
-    lifted = np.mean(peers.world_shifts(BATCH, 3)[:, 2])
+    lifted = np.mean(scenes.world_shifts(BATCH, 3)[:, 2])
     for row in rows:
         m = row.metrics
-        expected = free_fall_height_gradient(peers.DROP_CENTRE + (lifted if row.batch > 1 else 0.0),
-                                             peers.PEER_STEP, STEPS)
+        expected = free_fall_height_gradient(scenes.DROP_CENTRE + (lifted if row.batch > 1 else 0.0),
+                                             scenes.PEER_STEP, STEPS)
         assert row.num_steps == STEPS and m["finite"]
         assert m["height_gradient"] == pytest.approx(expected, rel=1e-5)  # float32 sums of 20 terms
         assert m["ratio"] == pytest.approx(row.run_s / m["forward_s"])
@@ -67,7 +67,7 @@ def test_the_gradient_table_is_in_the_markdown(scene):
 
 
 def made_up(engine, grad_s, finite=True, setting="s", batch=1):
-    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, batch, 1, 1000, 2.0, grad_s, dict(
+    return scenes.PeerRow("gradient", engine, setting, scenes.PEER_STEP, batch, 1, 1000, 2.0, grad_s, dict(
         wrt="w", forward_s=grad_s / 4, forward_compile_s=1.0, ratio=4.0, loss=1.0, finite=finite,
         height_gradient=math.nan if not finite else 0.1))
 

@@ -1,12 +1,12 @@
 """Gradients through contact side by side: jaxrb and the peers that differentiate (MJX, Brax).
 
-The scene is the peers' box drop (:mod:`jaxrb.bench.peers`: a 0.2 m box,
+The scene is the peers' box drop (:mod:`benchmarks.scenes`: a 0.2 m box,
 1 kg, released from rest with its centre at 0.5 m above a plane, μ = 0.5),
 every engine at h = 2 ms for T steps (T = 1 000: the fall, the landing at
 about step 143, then rest), float32, in one world and, for jaxrb's penalty
 adjoint and Brax spring (the one peer whose gradient is finite here), in a
 batch of worlds that differ by the drop benchmark's tiny shifts
-(:func:`jaxrb.bench.peers.world_shifts`), the loss their mean. Each engine
+(:func:`benchmarks.scenes.world_shifts`), the loss their mean. Each engine
 differentiates the same loss of the motion, the mean over the T steps of the squares of the
 position, the linear and angular velocity and the quaternion's vector part
 (:func:`jaxrb.bench.gradients.trajectory_loss`; a mean of squares of the
@@ -45,7 +45,8 @@ from typing import Sequence
 import jax
 import jax.numpy as jnp
 
-from jaxrb.bench import contact, gradients, peers
+from benchmarks.scenes import ENGINE_NAMES, PEER_STEP, PeerRow, drop_mjcf, free_qpos, ratio, world_shifts, x64
+from jaxrb.bench import contact, gradients
 from jaxrb.bench.report import fmt_fixed, fmt_si, markdown_table
 from jaxrb.bench.timing import compile_jitted, time_alternated
 
@@ -71,11 +72,11 @@ def generalized_loss(qpos, qvel) -> jax.Array:
 
 
 def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_steps, batch,
-                  settings) -> peers.PeerRow:
+                  settings) -> PeerRow:
     """Compile and time ``loss`` and its gradient; the row's run time is the gradient's.
 
     Args:
-        engine, setting: as :class:`jaxrb.bench.peers.PeerRow` names them.
+        engine, setting: as :class:`benchmarks.scenes.PeerRow` names them.
         wrt: short text, what the gradient is taken with respect to.
         loss: ``loss(*args) -> ()``.
         args: its arguments.
@@ -89,16 +90,16 @@ def _gradient_row(engine, setting, wrt, loss, args, argnums, height_of, num_step
     gradient, compile_s = compile_jitted(jax.grad(loss, argnums), *args)
     (forward_s, _, value), (grad_s, _, grads) = time_alternated(
         (forward, gradient), *args, repeats=settings["peers_gradient_rounds"], budget_s=settings["peers_budget_s"])
-    return peers.PeerRow("gradient", engine, setting, peers.PEER_STEP, batch, 1, num_steps, compile_s, grad_s, dict(
+    return PeerRow("gradient", engine, setting, PEER_STEP, batch, 1, num_steps, compile_s, grad_s, dict(
         wrt=wrt, forward_s=forward_s, forward_compile_s=forward_compile_s, ratio=grad_s / forward_s,
         loss=float(value), finite=gradients.all_finite(grads), height_gradient=float(height_of(grads))))
 
 
-def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
+def jaxrb_gradient(contact_model: str, method: str, num_steps: int, settings: dict, batch: int = 1) -> PeerRow:
     """jaxrb's row: ``contact_model`` at h = 2 ms, ``batch`` worlds, reverse mode ``method`` (gradients.METHODS)."""
     import jaxrb as rb
 
-    model, params, state = contact.drop_scene().build(dtype=jnp.float32, dt=peers.PEER_STEP, contact=contact_model)
+    model, params, state = contact.drop_scene().build(dtype=jnp.float32, dt=PEER_STEP, contact=contact_model)
     if batch > 1:
         state = contact._batched_state(state, batch)
     state_loss = gradients.make_loss(rb.make_step(model), num_steps, method, batch)
@@ -116,11 +117,11 @@ def _joint_height(grads):
     return jnp.sum(grads["qpos"][..., 2])
 
 
-def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
+def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> PeerRow:
     """MJX's row: ``mjx.step`` scanned, one solver iteration (see the module docstring)."""
     mujoco, mjx = mods["mujoco"], mods["mjx"]
-    with peers.x64(False):
-        model = mujoco.MjModel.from_xml_string(peers.drop_mjcf())
+    with x64(False):
+        model = mujoco.MjModel.from_xml_string(drop_mjcf())
         model.opt.iterations = 1
         mx = mjx.put_model(model)
         data0 = mjx.make_data(mx)
@@ -140,15 +141,15 @@ def mjx_gradient(mods: dict, num_steps: int, settings: dict) -> peers.PeerRow:
                              0, _joint_height, num_steps, 1, settings)
 
 
-def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict, batch: int = 1) -> peers.PeerRow:
+def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict, batch: int = 1) -> PeerRow:
     """Brax's row, ``batch`` worlds (``engine``: ``"brax_spring"`` or ``"brax_positional"``; ``pipeline.step``)."""
     mjcf, pipeline = mods["mjcf"], mods["pipeline"]
-    with peers.x64(False), warnings.catch_warnings():
+    with x64(False), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # Brax warns that it is unmaintained on every load
-        system = mjcf.loads(peers.drop_mjcf())
+        system = mjcf.loads(drop_mjcf())
         zero_qd = jnp.zeros(system.qd_size(), jnp.float32)
         act = jnp.zeros(system.act_size(), jnp.float32)
-        qpos = system.init_q if batch == 1 else peers._free_qpos(system.init_q, 1, peers.world_shifts(batch, 3))
+        qpos = system.init_q if batch == 1 else free_qpos(system.init_q, 1, world_shifts(batch, 3))
         theta = dict(mass=system.link.inertia.mass, friction=system.geom_friction, qpos=jnp.asarray(qpos, jnp.float32))
 
         def loss(theta):
@@ -169,7 +170,7 @@ def brax_gradient(engine: str, mods: dict, num_steps: int, settings: dict, batch
                              (theta,), 0, _joint_height, num_steps, batch, settings)
 
 
-def gradient_table(rows: Sequence[peers.PeerRow]) -> str:
+def gradient_table(rows: Sequence[PeerRow]) -> str:
     """Markdown table of the gradient rows: times, ratio to the forward, finiteness and jaxrb's speed over each.
 
     Args:
@@ -191,10 +192,10 @@ def gradient_table(rows: Sequence[peers.PeerRow]) -> str:
         speeds = []
         for setting in settings:
             mine = [r for r in chosen if r.engine == "jaxrb" and r.setting == setting and r.batch == row.batch]
-            speeds.append(fmt_fixed(peers.ratio(mine[0].body_steps_per_s, row.body_steps_per_s), 1) + "×"
+            speeds.append(fmt_fixed(ratio(mine[0].body_steps_per_s, row.body_steps_per_s), 1) + "×"
                           if mine else "—")
         table_rows.append(
-            [peers.ENGINE_NAMES[row.engine], row.setting, row.batch, m["wrt"], fmt_fixed(1e3 * m["forward_s"], 2),
+            [ENGINE_NAMES[row.engine], row.setting, row.batch, m["wrt"], fmt_fixed(1e3 * m["forward_s"], 2),
              fmt_fixed(1e3 * row.run_s, 2), fmt_fixed(m["ratio"], 2) + "×", fmt_si(row.body_steps_per_s),
              f"{fmt_fixed(m['forward_compile_s'], 1)}, {fmt_fixed(row.compile_s, 1)}",
              "yes" if m["finite"] else "**NO**", fmt_fixed(m["loss"], 4)] + speeds)

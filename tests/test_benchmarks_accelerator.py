@@ -1,9 +1,9 @@
-"""``python -m jaxrb.bench.accelerator``: rows are measured, a failing row is reported, the file is written."""
+"""``python -m benchmarks.accelerator``: rows are measured, a failing row is reported, the file is written."""
 
 import math
 import re
 
-from jaxrb.bench import accelerator
+from benchmarks import accelerator
 
 TINY = dict(accelerator.SETTINGS["quick"], free_batches=(2,), drop_batches=(2,), column_batches=(),
             pyramid_batches=(), impulse_batches=(), gradient_scenes=(), steps=10)

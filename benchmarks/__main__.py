@@ -1,0 +1,73 @@
+"""Command line: ``python -m benchmarks [--quick] [--out DIR] [--only SECTION ...]``.
+
+The report committed as docs/benchmarks.md: every section of
+``python -m jaxrb.bench`` and the two that run other engines, ``peers``
+(:mod:`benchmarks.peers`) and ``real_data`` (:mod:`benchmarks.real_data`), in
+the order of :data:`SECTIONS`. Run it from the repository's root with the
+``peers`` extra installed (``pip install -e ".[peers]"``); an engine that is
+missing is a note in the report, not a failure. ``--only peers real_data``
+runs the side-by-side sections alone. The options are
+``python -m jaxrb.bench``'s (:func:`jaxrb.bench.__main__.main` runs the
+report, with this module's two sections added); the report goes to stdout
+and to ``DIR/report.md`` (default ``bench_out``), progress to stderr.
+
+The GPU runs are a command of their own: ``python -m benchmarks.accelerator``.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from jaxrb.bench import __main__ as package_report
+
+#: Every section, in report order: jaxrb's own (jaxrb.bench.__main__.SECTIONS) and the peers'.
+SECTIONS = ("real_data", "speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
+            "smoothing")
+
+
+def _run_peers(quick: bool, out_dir: str, log):
+    from benchmarks import peers
+
+    return peers.peers_section(peers.QUICK if quick else peers.FULL, log)
+
+
+def _run_real_data(quick: bool, out_dir: str, log):
+    from benchmarks import real_data
+
+    return real_data.real_data_section(real_data.QUICK if quick else real_data.FULL, log)
+
+
+#: The sections this folder adds to jaxrb's report.
+EXTRA = {
+    "peers": package_report.Section(
+        "Peers side by side: MuJoCo, MJX, Brax, Jax2D, pymunk",
+        "the same scenes in each installed peer (pip install -e \".[peers]\"), same run, ratios jaxrb / peer "
+        "and the issue's targets",
+        _run_peers),
+    "real_data": package_report.Section(
+        "Real data: measured cube tosses beside MuJoCo and Bullet",
+        "400 measured cube tosses, half fitted, half scored; MuJoCo and Bullet with the publishers' "
+        "parameters (examples/cube_tosses)",
+        _run_real_data),
+}
+
+
+def main(argv=None) -> int:
+    """Run the report's sections (all of them, or those of ``--only``) and write ``DIR/report.md``.
+
+    Args:
+        argv: arguments without the program name (None: ``sys.argv[1:]``).
+
+    Returns:
+        0 (bad arguments exit with status 2 before anything runs).
+    """
+    return package_report.main(
+        argv, sections=SECTIONS, extra=EXTRA, prog="python -m benchmarks",
+        description="The committed benchmark report (docs/benchmarks.md): jaxrb's sections (python -m "
+                    "jaxrb.bench) and, side by side, other engines (peers: MuJoCo, MJX, Brax, Jax2D, pymunk; "
+                    "real_data: measured cube tosses beside MuJoCo and Bullet). Needs the peers extra for "
+                    "the other engines. Prints Markdown and writes DIR/report.md.")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
