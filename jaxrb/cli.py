@@ -49,8 +49,10 @@ def _parser() -> argparse.ArgumentParser:
     evaluate = commands.choices["evaluate"]
     evaluate.add_argument("--plot", metavar="PNG", help="write the error distribution here")
     evaluate.add_argument("--noise-floor", action="store_true", help="also measure the tracker noise's floor")
-    bench = commands.add_parser("bench", help="run the benchmark suite (python -m jaxrb.bench)")
-    bench.add_argument("bench_args", nargs=argparse.REMAINDER, help="arguments for jaxrb.bench")
+    # Its options (--quick, --only ..., --out) are python -m jaxrb.bench's, passed on as given:
+    # main() reads them with parse_known_args (argparse.REMAINDER refused a leading '--quick').
+    commands.add_parser("bench", help="run the benchmark suite (python -m jaxrb.bench; its options pass on, "
+                                      "e.g. jaxrb bench --quick)", add_help=False)
     return parser
 
 
@@ -63,7 +65,10 @@ def main(argv=None) -> int:
     Returns:
         The exit status: 0 on success, 2 for bad input (the message says which field).
     """
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args, rest = parser.parse_known_args(argv)
+    if args.command != "bench" and rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
     if args.command == "demo":
         from jaxrb.demo import main as demo_main
         demo_main(args.out)
@@ -93,7 +98,7 @@ def main(argv=None) -> int:
             return 2
         return 0
     from jaxrb.bench.__main__ import main as bench_main
-    return bench_main(args.bench_args) or 0
+    return bench_main(rest) or 0
 
 
 if __name__ == "__main__":

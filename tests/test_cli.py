@@ -65,3 +65,15 @@ def test_segments_cover_the_run_in_few_compiled_lengths(num_steps, every):
     lengths = _segments(num_steps, every)
     assert sum(lengths) == num_steps and all(length % every == 0 for length in lengths)
     assert len(set(lengths)) <= 2 and len(lengths) <= 21
+
+
+def test_bench_passes_its_options_on(monkeypatch):
+    """'jaxrb bench --quick' (the README's command) failed with 'unrecognized arguments: --quick'."""
+    import jaxrb.bench.__main__ as bench_main
+
+    seen = []
+    monkeypatch.setattr(bench_main, "main", lambda argv: seen.append(argv) or 0)
+    assert main(["bench", "--quick", "--only", "contact", "--out", "somewhere"]) == 0
+    assert seen == [["--quick", "--only", "contact", "--out", "somewhere"]]
+    with pytest.raises(SystemExit):  # other commands still refuse what they do not know
+        main(["demo", "--quick"])
