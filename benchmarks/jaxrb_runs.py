@@ -23,6 +23,7 @@ from benchmarks.scenes import (LOOP_SUFFIX, PYRAMID_ROWS, PYRAMID_TOP, STACK_COU
 from jaxrb.bench import contact, free_body
 from jaxrb.bench.report import fmt_step
 from jaxrb.bench.timing import final_state_fn
+from jaxrb.options import grouped
 
 
 def _user_loop(step: Callable, num_steps: int, batched: bool) -> Callable:
@@ -35,7 +36,7 @@ def _jaxrb_batched(scene_factory, dt, substeps, batch, num_steps, settings, buil
     import jaxrb as rb
 
     options = {"contact": "impulse", "substeps": substeps, **(build or {})}
-    model, params, state = scene_factory().build(dtype=jnp.float32, dt=dt, **options)
+    model, params, state = scene_factory().build(**grouped(dict(options, dtype=jnp.float32, dt=dt)))
     step = rb.make_step(model)
     if batch > 1:
         state = contact._batched_state(state, batch)

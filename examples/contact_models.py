@@ -23,7 +23,7 @@ OUT.mkdir(parents=True, exist_ok=True)
 jax.config.update("jax_enable_x64", True)
 
 MODELS = {  # build settings of each contact model
-    "impulse": dict(contact="impulse", dt=1 / 240, substeps=4, time_of_impact=True),
+    "impulse": dict(contact=rb.Impulse(time_of_impact=True), dt=1 / 240, substeps=4),
     "penalty": dict(contact="penalty", dt=1e-3),
 }
 
@@ -88,7 +88,7 @@ for level in range(count):
     column.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1 + 0.2 * level))
 fig, axes = plt.subplots(1, 2, figsize=(8, 4), subplot_kw={"projection": "3d"})
 for ax, (name, settings) in zip(axes, MODELS.items()):
-    settings = dict(settings, time_of_impact=False) if name == "impulse" else settings
+    settings = dict(settings, contact=rb.Impulse()) if name == "impulse" else settings
     model, params, state = column.build(**settings)
     traj = simulate(column, 2.0, settings)
     sink = 1000 * float(state.pos[-1, 2] - traj.pos[-1, -1, 2])

@@ -8,6 +8,7 @@ from jaxrb.collision.pairs import ContactSet
 from jaxrb.collision.pairs import detect as _detect
 from jaxrb.dynamics import (angular_momentum, kinetic_energy, potential_energy,
                             total_angular_momentum, world_inertia, wrench_at_points)
+from jaxrb.options import Impulse, Penalty
 from jaxrb.scene import Scene
 from jaxrb.scenefile import SceneFile, load_scene, save_scene
 from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere, point_mass_properties
@@ -31,7 +32,7 @@ __all__ = [
     "COLLIDING", "ContactSet", "SceneFile", "analytic", "evaluate", "fit_data", "load_scene", "measured",
     "render", "save_scene",
     "scenefile", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
-    "Box", "Capsule", "Circle", "Model", "Params", "PointMasses", "Polygon", "Scene", "Sphere",
+    "Box", "Capsule", "Circle", "Impulse", "Model", "Params", "Penalty", "PointMasses", "Polygon", "Scene", "Sphere",
     "State", "Wrench", "angular_momentum", "jit", "kinetic_energy", "make_step", "point_mass_properties",
     "potential_energy", "quaternion", "rollout", "sweep", "sysid", "total_angular_momentum",
     "world_inertia", "wrench_at_points",

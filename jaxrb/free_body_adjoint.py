@@ -39,6 +39,7 @@ Components: a vector is a tuple of (n,) arrays (x, y, z), a quaternion
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, Optional
 
 import jax
@@ -329,7 +330,8 @@ def _parameter_cotangents(model: Model, params: Params, applied: Optional[Wrench
     # Step t's output time is t + 1 steps of dt after the start.
     steps_done = jnp.arange(1, g_times.shape[0] + 1, dtype=g_times.dtype)
     g_dt = jnp.sum(sums["h"]) / model.substeps + jnp.sum(g_times * steps_done)
-    g_params = jax.tree_util.tree_map(jnp.zeros_like, params).replace(
+    g_params = dataclasses.replace(  # cotangents: not physical values, so not Params.replace
+        jax.tree_util.tree_map(jnp.zeros_like, params),
         mass=g_mass, force=jnp.sum(g_force, axis=0), torque=jnp.sum(g_torque, axis=0),
         gravity=jnp.sum(g_force * params.mass[:, None], axis=(0, 1)), dt=g_dt,
         inertia=matrices(sums["inertia"]), inv_inertia=matrices(sums["inv_inertia"]))

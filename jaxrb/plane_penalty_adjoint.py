@@ -458,12 +458,12 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
         g_params, g_applied = loads_vjp(stacked if per_step else g_loads)
         steps_done = jnp.arange(1, num_steps + 1, dtype=g_steps.time.dtype)
         g_dt = (jnp.sum(body["h"]) + sum(jnp.sum(group["h"]) for group in rows)) / model.substeps
-        g_params = g_params.replace(
-            dt=g_params.dt + g_dt + jnp.sum(g_steps.time * steps_done),
+        g_params = dataclasses.replace(  # cotangents: not physical values, so not Params.replace
+            g_params, dt=g_params.dt + g_dt + jnp.sum(g_steps.time * steps_done),
             penalty_stiffness=g_params.penalty_stiffness + sum(jnp.sum(group["stiffness"]) for group in rows))
         if model.penalty_smooth:
-            g_params = g_params.replace(
-                penalty_width=g_params.penalty_width + sum(jnp.sum(group["width"]) for group in rows))
+            g_params = dataclasses.replace(
+                g_params, penalty_width=g_params.penalty_width + sum(jnp.sum(group["width"]) for group in rows))
         g_carry = Carry(pos=g_first[0], vel=g_first[1], quat=g_first[2], angvel=g_first[3],
                         normal_force=g_first[4], friction=g_first[5], time=jnp.sum(g_steps.time))
         return g_params, _prepared_cotangent(prepared, body, rows), g_carry, g_applied

@@ -29,6 +29,7 @@ import numpy as np
 from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
 from jaxrb.collision.pairs import build_pair_groups
 from jaxrb.integrators import body_frame_momentum
+from jaxrb.options import Contact, flat_options
 from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
                          QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option,
                          param_bounds)
@@ -332,16 +333,9 @@ class Scene:
         return len(self._planes) - 1
 
     def build(self, dt: float, integrator: str = "semi_implicit", orientation: Optional[str] = None,
-              contact: Optional[str] = None, substeps: Optional[int] = None, dtype=None, *,
-              solver: str = "sequential", iterations: int = 4, relax_iterations: int = 1,
+              contact: Contact = None, substeps: Optional[int] = None, dtype=None, *,
               broadphase: Optional[str] = None, broadphase_capacity: Optional[int] = None,
-              contact_margin: float = 0.01, bounce_threshold: float = 0.5,
-              contact_hertz: Optional[float] = None, contact_damping_ratio: float = 10.0,
-              max_push_velocity: float = 3.0, penalty_stiffness: Optional[float] = None,
-              penalty_damping: Optional[float] = None, penalty_frequency: Optional[float] = None,
-              penalty_damping_ratio: Optional[float] = None, penalty_width: Optional[float] = None,
-              penalty_friction: str = "spring", friction_velocity: float = 1e-4,
-              impulse_smoothing: float = 0.0, time_of_impact: bool = False):
+              contact_margin: float = 0.01, bounce_threshold: float = 0.5, **deprecated):
         """Validate the options and return ``(model, params, state)``.
 
         Args:
@@ -350,18 +344,20 @@ class Scene:
                 ``"rk4_body"`` (see :mod:`jaxrb.integrators`).
             orientation: ``"first_order"`` or ``"exp_map"`` (default). The RK4s integrate
                 the quaternion ODE themselves, so they take no orientation option.
-            contact: ``"none"``, ``"penalty"`` or ``"impulse"``. Contact needs a
-                velocity-first integrator (``semi_implicit`` or
-                ``implicit_gyro``); the default is ``"impulse"`` when any pair
-                can touch, else ``"none"``. A scene whose pairs can touch,
-                built with ``euler``, ``rk4`` or ``rk4_body``, must say
-                ``contact="none"`` (a ValueError says so), rather than
-                silently lose its contact.
+            contact: the contact model and its options: ``rb.Impulse(...)``,
+                ``rb.Penalty(...)`` (each option documented there, defaults in
+                its ``repr``), or ``"impulse"``, ``"penalty"`` (their
+                defaults) or ``"none"``. Contact needs a velocity-first
+                integrator (``semi_implicit`` or ``implicit_gyro``); the
+                default is impulse contact when any pair can touch, else none.
+                A scene whose pairs can touch, built with ``euler``, ``rk4``
+                or ``rk4_body``, must say ``contact="none"`` (a ValueError says
+                so), rather than silently lose its contact.
             substeps: integration substeps per ``step`` call, >= 1. Default:
                 for impulse contact the fewest that keep the substep at or
                 below :data:`IMPULSE_SUBSTEP` (1/480 s): 8 at dt = 1/60 s, 1 at
                 dt = 2 ms; otherwise 1. Why 1/480 s: a soft contact's spring
-                (``contact_hertz``, a quarter of the substep rate) sets how far
+                (``hertz``, a quarter of the substep rate) sets how far
                 a stack sinks. Measured at dt = 1/60 s over 10 s (0.2 m boxes,
                 μ = 0.5, each set off sideways by up to 1 mm), with 4 substeps
                 a 10-box column sinks 6.9 mm and a 50 kg box on a 1 kg box
@@ -369,52 +365,37 @@ class Scene:
                 0.17 mm, and the 55-box 2D pyramid's top sinks 0.6 mm.
             dtype: floating dtype of Params and State; default JAX's default float
                 (float64 when x64 is enabled, else float32).
-            solver: impulse iteration scheme: ``"sequential"`` (Gauss–Seidel over
-                contacts) or ``"jacobi"`` (parallel, with mass splitting).
-            iterations, relax_iterations: impulse iterations per substep with and
-                without position correction.
             broadphase: ``"all_pairs"`` or ``"spheres"`` (bounding-sphere test,
                 then at most ``broadphase_capacity`` pairs per pair kind); default
                 all pairs up to 64 body–body pairs.
             broadphase_capacity: pairs kept per pair kind by the ``"spheres"``
                 broadphase (default: all of them).
-            contact_margin, bounce_threshold, contact_hertz,
-                contact_damping_ratio, max_push_velocity, friction_velocity:
-                initial values of the Params fields of the same names.
-                ``contact_hertz`` defaults to a quarter of the substep rate,
-                0.25·substeps/dt (60 Hz at dt = 1/60 s with 4 substeps), the
-                stiffest contact the soft step resolves (it is capped there
-                anyway). A soft contact is a spring of that frequency on the
-                pair's effective mass, so it sinks by load/(m_eff ω²) and a tall
-                stack of small boxes on soft contacts buckles: a 10-box stack of
-                0.2 m cubes stands at 60 Hz but not at 30 Hz, a 20-box 2D stack
-                or a 100:1 mass ratio needs 8 substeps (120 Hz).
-            penalty_stiffness, penalty_damping, penalty_frequency, penalty_damping_ratio:
-                N/m and N·s/m per contact point.
-                Or give ``penalty_frequency`` (Hz) and ``penalty_damping_ratio``
-                instead: k = m ω², c = 2ζ m ω with m the mean body mass. Without
-                any, the frequency is 0.03/h (h = dt/substeps; stable for
-                symplectic Euler with up to ~8 contacts on a body) and damping comes from each contact's
-                restitution (the clamped spring-damper's inverse, jaxrb.contact.penalty).
-            penalty_width: softplus width (m); giving it turns on the smooth
-                activation.
-            penalty_friction: ``"spring"`` (stick–slip, holds a load below the
-                friction angle) or ``"regularized"`` (smooth Coulomb with
-                ``friction_velocity``; creeps under a steady load); see
-                :mod:`jaxrb.contact.penalty`.
-            impulse_smoothing: σ (m/s) of the impulse model's smooth normal
-                clamp (``Params.impulse_smoothing``); 0 is the exact clamp.
-            time_of_impact: impulse contact only: resolve fast impacts of
-                spheres, circles, capsules and point masses against planes and
-                of sphere (circle) pairs at their time inside the substep
-                instead of at its end (see :mod:`jaxrb.contact.toi`); pairs of
-                other kinds keep the discrete treatment.
+            contact_margin: distance (m) below which a contact is kept as
+                speculative (``Params.contact_margin``).
+            bounce_threshold: approach speed (m/s) below which a contact rests
+                rather than bounces, and the band of ``RESTING`` status
+                (``Params.bounce_threshold``).
+            **deprecated: the contact models' options as flat keywords
+                (``iterations=8``, ``penalty_stiffness=2e4``, ...): still
+                taken for one release, with a DeprecationWarning
+                (:data:`jaxrb.options.FLAT_KEYWORDS` maps them).
 
         Returns:
             ``(model, params, state)``: the static :class:`~jaxrb.types.Model`,
             the differentiable :class:`~jaxrb.types.Params` and the initial
             :class:`~jaxrb.types.State`.
         """
+        contact, model_options = flat_options(contact, deprecated)
+        return self._build(dt, integrator, orientation, contact, substeps, dtype, broadphase=broadphase,
+                           broadphase_capacity=broadphase_capacity, contact_margin=contact_margin,
+                           bounce_threshold=bounce_threshold, **model_options)
+
+    def _build(self, dt, integrator, orientation, contact, substeps, dtype, *, solver, iterations,
+               relax_iterations, broadphase, broadphase_capacity, contact_margin, bounce_threshold,
+               contact_hertz, contact_damping_ratio, max_push_velocity, penalty_stiffness, penalty_damping,
+               penalty_frequency, penalty_damping_ratio, penalty_width, penalty_friction, friction_velocity,
+               impulse_smoothing, time_of_impact):
+        """:meth:`build` with every option as a flat keyword (:func:`jaxrb.options.flat_options`)."""
         check = _Fields("scene.build")
         if not self._bodies:
             raise ValueError("scene.build: the scene has no bodies; add one with add_body")

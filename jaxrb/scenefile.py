@@ -85,6 +85,7 @@ from typing import Optional
 
 import numpy as np
 
+from jaxrb import options as contact_options
 from jaxrb.scene import Scene
 from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere
 
@@ -140,12 +141,16 @@ class SceneFile:
         label = self.source or "scene"
         overrides = _read_build(_plain_build_options(overrides), _Context(label, "build overrides"),
                                 where="")
-        options = {**self.build_options, **overrides}
+        options = dict(self.build_options)
+        if "contact" in overrides:  # another model: the file's options of its own model no longer apply
+            options = {key: value for key, value in options.items()
+                       if contact_options.FLAT_KEYWORDS.get(key, (overrides["contact"],))[0] == overrides["contact"]}
+        options.update(overrides)
         if "dt" not in options:
             raise ValueError(f"{label}: no time step: the file's \"build\" section has no 'dt'; "
                              "give one, e.g. SceneFile.build(dt=0.004)")
         try:
-            return self.scene.build(**options)
+            return self.scene.build(**contact_options.grouped(options))
         except ValueError as error:
             raise ValueError(f"{label}: build: {error}") from None
 
@@ -296,22 +301,29 @@ def _parameters(method):
 
 
 def _build_kinds() -> dict:
-    """Scene.build keyword -> 'number' | 'integer' | 'string' | 'boolean' | 'dtype' (+ '?' if None is allowed).
+    """Build option -> 'number' | 'integer' | 'string' | 'boolean' | 'dtype' (+ '?' if None is allowed).
 
-    Read from Scene.build's signature so a new build option is accepted here
-    without editing this module.
+    Read from Scene.build's signature and the contact groups' fields (stored
+    flat, by their keywords in :data:`jaxrb.options.FLAT_KEYWORDS`), so a new
+    build option is accepted here without editing this module.
     """
-    kinds = {}
     names = {"float": "number", "int": "integer", "str": "string", "bool": "boolean"}
-    for name, parameter in inspect.signature(Scene.build).parameters.items():
-        if name == "self":
-            continue
-        annotation = parameter.annotation if isinstance(parameter.annotation, str) else \
-            getattr(parameter.annotation, "__name__", "")
-        optional = annotation.startswith("Optional[") or parameter.default is None
+
+    def kind(name, annotation, default):
+        annotation = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", "")
+        optional = annotation.startswith("Optional[") or default is None
         inner = annotation[len("Optional["):-1] if annotation.startswith("Optional[") else annotation
-        kind = "dtype" if name == "dtype" else names.get(inner, "any")
-        kinds[name] = kind + ("?" if optional else "")
+        if name == "contact":  # a file names the model; its options are stored flat beside it
+            inner = "str"
+        return ("dtype" if name == "dtype" else names.get(inner, "any")) + ("?" if optional else "")
+
+    kinds = {name: kind(name, parameter.annotation, parameter.default)
+             for name, parameter in inspect.signature(Scene.build).parameters.items()
+             if name != "self" and parameter.kind is not inspect.Parameter.VAR_KEYWORD}
+    for group, table in ((contact_options.Impulse, contact_options.IMPULSE_KEYWORDS),
+                         (contact_options.Penalty, contact_options.PENALTY_KEYWORDS)):
+        for field in dataclasses.fields(group):
+            kinds[table[field.name]] = kind(field.name, field.type, field.default)
     return kinds
 
 
@@ -382,7 +394,7 @@ def _shape_to_dict(shape) -> dict:
 
 def _plain_build_options(options: dict) -> dict:
     plain = {}
-    for key, value in options.items():
+    for key, value in contact_options.flat(options).items():  # a contact group's options stored flat
         if key == "dtype" and value is not None and not isinstance(value, str):
             value = np.dtype(value).name
         elif isinstance(value, np.generic):

@@ -251,14 +251,15 @@ class Params:
                 :data:`PARAM_BOUNDS` (negative mass, restitution above 1, a
                 singular inertia), naming the field.
         """
-        dim = int(np.shape(self.gravity)[-1])
         checked = {}
         for name, value in changes.items():
             if name not in self.__dataclass_fields__:
                 raise ValueError(f"Params.replace: unknown field {name!r}; fields are "
                                  f"{', '.join(self.__dataclass_fields__)}")
             old = getattr(self, name)
-            if name in DERIVED_PARAMS or old is None or isinstance(value, jax.core.Tracer):
+            physical = hasattr(old, "dtype") and np.issubdtype(old.dtype, np.floating)
+            # A Params-shaped tree of masks (bools) or cotangents is not checked; a traced value cannot be.
+            if name in DERIVED_PARAMS or not physical or isinstance(value, jax.core.Tracer):
                 checked[name] = value
                 continue
             try:
@@ -271,7 +272,7 @@ class Params:
             elif array.shape != shape and array.shape[1:] != shape:
                 raise ValueError(f"Params.replace: field {name!r} must have shape {shape} (or a batch of it, "
                                  f"(B,) + {shape}), got {array.shape}")
-            check_param_values("Params.replace", name, array, dim)
+            check_param_values("Params.replace", name, array, int(np.shape(self.gravity)[-1]))
             checked[name] = jax.numpy.asarray(array, dtype=old.dtype)
         return dataclasses.replace(self, **checked)
 

@@ -377,7 +377,7 @@ def test_vmapped_impulse_rows_write_their_bodies_without_scatters(shape, time_of
     scene = rb.Scene(dim=3)
     scene.add_plane(restitution=0.5)
     scene.add_body(shape, mass=1.0, pos=(0.0, 0.0, 0.5), restitution=0.5)
-    model, params, state = scene.build(contact="impulse", dt=1 / 60, substeps=2, time_of_impact=time_of_impact)
+    model, params, state = scene.build(contact=rb.Impulse(time_of_impact=time_of_impact), dt=1 / 60, substeps=2)
     states = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), state)
     text = jax.jit(jax.vmap(rb.make_step(model), in_axes=(0, None))).lower(states, params).compile().as_text()
     assert " dynamic-update-slice(" in text or "dynamic-update-slice_fusion" in text
@@ -396,7 +396,7 @@ def test_impulse_gradient_compiles_without_gathers_or_scatters(solver):
     scene = rb.Scene(dim=3)
     scene.add_plane(restitution=0.5)
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.09), angvel=(1.0, 2.0, 0.5))
-    model, params, state = scene.build(contact="impulse", dt=1 / 60, substeps=1, solver=solver)
+    model, params, state = scene.build(contact=rb.Impulse(solver=solver), dt=1 / 60, substeps=1)
     step = rb.make_step(model)
     height = lambda params: step(state, params).pos[0, 2]
     text = jax.jit(jax.grad(height)).lower(params).compile().as_text()
@@ -465,7 +465,7 @@ def test_jacobi_solver_slides_to_a_stop_without_rocking():
     scene = rb.Scene(dim=3)
     scene.add_plane(friction=0.5)
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(2.0, 0.0, 0.0), friction=0.5)
-    model, params, state = scene.build(contact="impulse", solver="jacobi", **MODELS["impulse"])
+    model, params, state = scene.build(contact=rb.Impulse(solver="jacobi"), **MODELS["impulse"])
     traj = simulate(model, params, state, 2.0)
     distance = float(traj.pos[-1, 0, 0] - state.pos[0, 0])
     np.testing.assert_allclose(distance, 2.0 ** 2 / (2 * 0.5 * G), rtol=0.02)
@@ -485,7 +485,7 @@ def test_sliding_box_stores_world_frame_impulses(solver):
     scene = rb.Scene(dim=3)
     scene.add_plane(friction=0.5)
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.1), vel=(2.0, 0.0, 0.0), friction=0.5)
-    model, params, state = scene.build(contact="impulse", solver=solver, **MODELS["impulse"])
+    model, params, state = scene.build(contact=rb.Impulse(solver=solver), **MODELS["impulse"])
     traj = simulate(model, params, state, 0.25)  # it stops at 2/(0.5 g) = 0.41 s
     h = float(params.dt) / model.substeps
     sliding = np.asarray(traj.contact_impulse[5:])  # settled onto its four corners
@@ -515,7 +515,7 @@ def test_jacobi_row_couplings_match_the_split_sub_bodies():
     scene.add_body(rb.Box((0.2, 0.2, 0.1)), mass=2.0, pos=(0.0, 0.0, 0.1), friction=0.5)
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.03, 0.02, 0.299), quat=(0.99, 0.05, 0.08, 0.1),
                    friction=0.5)
-    model, params, state = scene.build(dt=1 / 60, contact="impulse", solver="jacobi", dtype=jnp.float64)
+    model, params, state = scene.build(dt=1 / 60, contact=rb.Impulse(solver="jacobi"), dtype=jnp.float64)
     contacts = rb.detect_contacts(model, params, state)
     prep = impulse.prepare(model, params, state, contacts)
     active = np.asarray(contacts.active)

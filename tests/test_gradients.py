@@ -186,11 +186,11 @@ PLANE_FILTER = dict(collision_category=0b01)
 SECONDS = 0.15
 # Impulse: contact_hertz below the cap 0.25/h = 60 Hz, since the soft step uses
 # min(hertz, cap), which has a kink at the default (the cap itself).
-IMPULSE = dict(dt=1 / 60, substeps=4, contact_hertz=30.0)
+IMPULSE = dict(dt=1 / 60, substeps=4, contact=rb.Impulse(hertz=30.0))
 PENALTY_STIFFNESS = 4e4
 # Explicit damper (below the effective-mass cap m_c/h ≈ 62 N·s/m of a box corner,
 # whose min() would be a kink): penalty_damping_from_restitution is off.
-PENALTY = dict(dt=1e-3, penalty_stiffness=PENALTY_STIFFNESS, penalty_damping=20.0)
+PENALTY = dict(dt=1e-3, contact=rb.Penalty(stiffness=PENALTY_STIFFNESS, damping=20.0))
 # Below equilibrium: the impulse model's overdamped soft contact (damping ratio
 # 10) lifts the bodies towards their sink of ~3e-4 m without overshooting, so
 # every separation stays negative. At separation 0 the solver switches between
@@ -238,7 +238,7 @@ def ground_scene(dim, contact):
         scene.add_body(rb.Circle(0.1), pos=(2.0, ball_z), vel=(4.0, 0.0), **common)
         scene.add_body(rb.Circle(0.1), pos=(-2.0, 0.2), vel=(0.5, -1.0), angvel=1.0, restitution=0.6, **common)
         push = [[2.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
-    model, params, state = scene.build(contact=contact, **(IMPULSE if contact == "impulse" else PENALTY))
+    model, params, state = scene.build(**(IMPULSE if contact == "impulse" else PENALTY))
     return model, params.replace(force=jnp.asarray(push, dtype=params.mass.dtype)), state
 
 
@@ -271,7 +271,7 @@ def test_penalty_restitution_gradient_matches_finite_differences(dim):
     scene.add_plane(restitution=0.3)
     scene.add_body(rb.Sphere(0.1) if dim == 3 else rb.Circle(0.1), mass=1.0, restitution=0.6,
                    pos=(0.0, 0.0, 0.2) if dim == 3 else (0.0, 0.2), vel=(0.5, 0.0, -1.0) if dim == 3 else (0.5, -1.0))
-    model, params, state = scene.build(dt=1e-3, contact="penalty", penalty_stiffness=PENALTY_STIFFNESS)
+    model, params, state = scene.build(dt=1e-3, contact=rb.Penalty(stiffness=PENALTY_STIFFNESS))
     assert model.penalty_damping_from_restitution
     keys = ("state.pos", "state.vel", "params.mass", "params.restitution", "params.penalty_stiffness")
     check_against_fd(f"penalty {dim}D bounce", rollout_loss(model, params, state, 150),
@@ -297,7 +297,7 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     scene.add_plane(friction=0.5, restitution=0.3)
     scene.add_body(rb.Box((0.1, 0.1)), pos=(0.0, 0.15), vel=(1.0, 0.0), angvel=0.5, mass=1.0,
                    friction=0.5, restitution=0.6)
-    model, params, state = scene.build(contact="impulse", **dict(IMPULSE, relax_iterations=0, bounce_threshold=2.0))
+    model, params, state = scene.build(**dict(IMPULSE, contact=rb.Impulse(hertz=30.0, relax_iterations=0), bounce_threshold=2.0))
     # Rows of both kinds: the box starts beyond the contact margin and is pushed on later.
     assert float(state.pos[0, 1]) - 0.1 > float(params.contact_margin)
     trajectory = rb.rollout(rb.make_step(model), state, params, 12)
@@ -362,7 +362,7 @@ def test_vmapped_jacobi_gradients_equal_each_worlds():
     scene.add_plane(friction=0.5, restitution=0.3)
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), pos=(0.0, 0.0, 0.15), vel=(1.0, 0.3, -0.5), angvel=(0.3, 0.0, 1.0),
                    mass=1.0, friction=0.5, restitution=0.6)
-    model, params, state = scene.build(contact="impulse", solver="jacobi", **dict(IMPULSE, relax_iterations=0))
+    model, params, state = scene.build(**dict(IMPULSE, contact=rb.Impulse(hertz=30.0, solver="jacobi", relax_iterations=0)))
     states = jax.vmap(lambda speed: state.replace(vel=state.vel.at[0, 0].set(speed)))(jnp.array([0.5, 1.0, 2.0]))
     world = lambda tree, index: jax.tree_util.tree_map(lambda array: array[index], tree)
     step = rb.make_step(model)
@@ -426,8 +426,8 @@ def degenerate_scene(dim, contact, dtype):
         scene.add_body(rb.PointMasses(TRIANGLE_2D, (1.0, 1.0, 1.0)), pos=(3.0, 0.0), **ON_PLANE)
         for _ in range(2):
             scene.add_body(rb.Circle(0.1), mass=1.0, pos=(-1.0, 1.0), **PAIR_ONLY)
-    settings = IMPULSE if contact == "impulse" else dict(dt=1e-3)
-    return scene.build(contact=contact, dtype=dtype, **settings)
+    settings = IMPULSE if contact == "impulse" else dict(dt=1e-3, contact="penalty")
+    return scene.build(dtype=dtype, **settings)
 
 
 FLOAT_STATE = ("pos", "vel", "angvel", "quat", "angle")

@@ -55,7 +55,7 @@ def two_planes_scene():
 
 def rollouts(scene, applied=False, **build):
     """The rollout both ways, float64: (component form, generic)."""
-    model, params, state = scene.build(dt=0.002, contact="penalty", dtype=jnp.float64, **build)
+    model, params, state = scene.build(**{"dt": 0.002, "contact": "penalty", "dtype": jnp.float64, **build})
     step, generic = rb.make_step(model), generic_step(model)
     wrench = None
     if applied:
@@ -77,9 +77,9 @@ def assert_same(fast, generic):
 @pytest.mark.parametrize("build", [
     {},
     {"substeps": 2, "orientation": "first_order"},
-    {"penalty_width": 2e-3},
-    {"penalty_friction": "regularized"},
-    {"penalty_damping": 30.0},
+    {"contact": rb.Penalty(width=2e-3)},
+    {"contact": rb.Penalty(friction="regularized")},
+    {"contact": rb.Penalty(damping=30.0)},
 ], ids=["default", "substeps-first-order", "smooth", "regularized", "fixed-damper"])
 def test_component_rollout_equals_the_step(build):
     fast, generic = rollouts(tumbling_scene(), **build)

@@ -62,9 +62,10 @@ def applied_loads(num_bodies):
 
 
 CASES = {
-    "box": dict(scene=box_scene, build=dict(dt=0.002), every=1, applied=False),
+    "box": dict(scene=box_scene, build=dict(dt=0.002, contact="penalty"), every=1, applied=False),
     "mixed, 2 substeps, smooth, first_order, every 3, applied loads": dict(
-        scene=mixed_scene, build=dict(dt=0.004, substeps=2, penalty_width=1e-3, orientation="first_order"),
+        scene=mixed_scene, build=dict(dt=0.004, substeps=2, contact=rb.Penalty(width=1e-3),
+                                      orientation="first_order"),
         every=3, applied=True),
 }
 
@@ -72,7 +73,7 @@ CASES = {
 @pytest.fixture(scope="module", params=list(CASES))
 def case(request):
     setting = CASES[request.param]
-    model, params, state = setting["scene"]().build(contact="penalty", **setting["build"])
+    model, params, state = setting["scene"]().build(**setting["build"])
     params = params.replace(force=params.force + 0.4, torque=params.torque + jnp.array([0.02, -0.01, 0.03]))
     step = rb.make_step(model)
     assert adjoint.supports(model)
@@ -176,8 +177,8 @@ def test_gradient_is_finite_at_rest_in_exact_contact():
 def test_what_it_covers():
     box = box_scene()
     assert plane_penalty_adjoint.supports(box.build(dt=0.002, contact="penalty")[0])
-    for settings in (dict(penalty_friction="regularized"), dict(integrator="implicit_gyro")):
-        model = box.build(dt=0.002, contact="penalty", **settings)[0]
+    for settings in (dict(contact=rb.Penalty(friction="regularized")), dict(contact="penalty", integrator="implicit_gyro")):
+        model = box.build(dt=0.002, **settings)[0]
         assert not adjoint.supports(model), settings
     damped = rb.Scene(dim=3)
     damped.add_plane()

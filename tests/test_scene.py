@@ -335,12 +335,15 @@ def test_bad_scene_dim_and_gravity():
         rb.Scene(dim=2, gravity=(0.0, NAN))
 
 
-@pytest.mark.parametrize("option, valid", [("integrator", INTEGRATORS), ("orientation", ORIENTATIONS),
-                                           ("contact", CONTACT_MODELS), ("solver", SOLVERS),
-                                           ("penalty_friction", PENALTY_FRICTIONS)])
-def test_unknown_option_lists_valid_ones(option, valid):
+@pytest.mark.parametrize("option, valid, make", [
+    ("integrator", INTEGRATORS, lambda: scene3().build(dt=0.01, integrator="leapfrog")),
+    ("orientation", ORIENTATIONS, lambda: scene3().build(dt=0.01, orientation="leapfrog")),
+    ("contact", CONTACT_MODELS, lambda: scene3().build(dt=0.01, contact="leapfrog")),
+    ("solver", SOLVERS, lambda: rb.Impulse(solver="leapfrog")),
+    ("friction", PENALTY_FRICTIONS, lambda: rb.Penalty(friction="leapfrog"))])
+def test_unknown_option_lists_valid_ones(option, valid, make):
     with pytest.raises(ValueError) as info:
-        scene3().build(dt=0.01, **{option: "leapfrog"})
+        make()
     message = str(info.value)
     assert option in message and "'leapfrog'" in message
     for name in valid:

@@ -4,6 +4,7 @@ import copy
 import inspect
 import json
 import pathlib
+import warnings
 
 import jax
 import numpy as np
@@ -106,28 +107,42 @@ def test_rejected_body_is_not_recorded():
     assert len(sf.scene_to_dict(scene)["bodies"]) == 1
 
 
-@pytest.mark.parametrize("options", [
-    dict(dt=0.01, dtype="float32", contact="penalty", substeps=3, penalty_frequency=50.0,
-         penalty_friction="regularized"),
-    dict(dt=0.005, dtype=np.float64, integrator="implicit_gyro", orientation="first_order",
-         contact="impulse", solver="jacobi", iterations=6, relax_iterations=0,
-         broadphase="spheres", broadphase_capacity=4, contact_hertz=30.0, time_of_impact=True,
-         impulse_smoothing=0.01),
-    dict(dt=0.02, integrator="rk4", contact="none"),
+@pytest.mark.parametrize("options, stored", [
+    (dict(dt=0.01, dtype="float32", contact=rb.Penalty(frequency=50.0, friction="regularized"), substeps=3),
+     dict(dt=0.01, dtype="float32", contact="penalty", substeps=3, penalty_frequency=50.0,
+          penalty_friction="regularized")),
+    (dict(dt=0.005, dtype=np.float64, integrator="implicit_gyro", orientation="first_order",
+          contact=rb.Impulse(solver="jacobi", iterations=6, relax_iterations=0, hertz=30.0, time_of_impact=True,
+                             smoothing=0.01), broadphase="spheres", broadphase_capacity=4),
+     dict(dt=0.005, dtype="float64", integrator="implicit_gyro", orientation="first_order",
+          contact="impulse", solver="jacobi", iterations=6, relax_iterations=0, contact_hertz=30.0,
+          time_of_impact=True, impulse_smoothing=0.01, broadphase="spheres", broadphase_capacity=4)),
+    (dict(dt=0.02, integrator="rk4", contact="none"), dict(dt=0.02, integrator="rk4", contact="none")),
 ])
-def test_build_options_round_trip(options, tmp_path):
+def test_build_options_round_trip(options, stored, tmp_path):
+    """A contact group is stored flat (the format is unchanged) and read back as the same group."""
     scene = scene_3d()
     path = tmp_path / "scene.json"
     sf.save_scene(path, scene, **options)
     loaded = sf.load_scene(path)
-    expected = dict(options)
-    if "dtype" in expected:
-        expected["dtype"] = np.dtype(expected["dtype"]).name
-    assert loaded.build_options == expected
-    built = loaded.build()
+    assert loaded.build_options == stored
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # the file's flat keys are not the user's
+        built = loaded.build()
     assert_same_build(scene.build(**options), built)
     if options.get("dtype") == "float32":
         assert built[1].mass.dtype == np.float32 and built[2].pos.dtype == np.float32
+
+
+def test_build_override_of_the_contact_model_drops_the_files_model_options():
+    path_options = dict(dt=0.01, contact="penalty", penalty_stiffness=8000.0)
+    loaded = sf.scene_from_dict(sf.scene_to_dict(scene_3d(), **path_options), source="p.json")
+    model, params, _ = loaded.build()
+    assert model.contact == "penalty" and float(params.penalty_stiffness) == 8000.0
+    model, params, _ = loaded.build(contact=rb.Impulse(iterations=2))
+    assert model.contact == "impulse" and model.iterations == 2
+    model, params, _ = loaded.build(contact=rb.Penalty(stiffness=2e4))
+    assert float(params.penalty_stiffness) == 2e4
 
 
 def test_build_overrides_and_missing_dt():
@@ -156,7 +171,8 @@ def test_every_add_body_and_build_keyword_is_typed():
     plane_keys = set(inspect.signature(rb.Scene.add_plane).parameters) - {"self"}
     assert plane_keys == set(sf._plane_field_checkers(3))
     kinds = sf._build_kinds()
-    assert set(kinds) == set(inspect.signature(rb.Scene.build).parameters) - {"self"}
+    assert set(kinds) == (set(inspect.signature(rb.Scene.build).parameters) - {"self", "deprecated"}
+                          | set(rb.options.FLAT_KEYWORDS))
     assert all(kind.rstrip("?") != "any" for kind in kinds.values()), kinds
     assert kinds["dt"] == "number" and kinds["substeps"] == "integer?" and kinds["contact"] == "string?"
 

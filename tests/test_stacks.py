@@ -60,7 +60,7 @@ def check_sink_and_drift(state, traj, top, rest_height):
     assert drift < 1e-3, f"drifted {drift * 1000:.2f} mm"
 
 
-@pytest.mark.parametrize("build", [dict(substeps=4), dict(substeps=8, solver="jacobi"), PENALTY],
+@pytest.mark.parametrize("build", [dict(substeps=4), dict(substeps=8, contact=rb.Impulse(solver="jacobi")), PENALTY],
                          ids=["impulse", "impulse-jacobi", "penalty"])
 def test_ten_box_stack_3d(build):
     check_standing(*run_stack(column_scene([1.0] * 10), **build), top=9)
@@ -97,4 +97,4 @@ def test_pyramid_of_ten_rows_2d(build):
 def test_standing_check_fails_on_a_stack_that_falls():
     """The criteria can fail: at 5 Hz soft contacts (a twelfth of the default) the stack sinks and topples."""
     with pytest.raises(AssertionError):
-        check_standing(*run_stack(column_scene([1.0] * 10), substeps=4, contact_hertz=5.0), top=9)
+        check_standing(*run_stack(column_scene([1.0] * 10), substeps=4, contact=rb.Impulse(hertz=5.0)), top=9)

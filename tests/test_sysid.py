@@ -14,6 +14,7 @@ bouncing ball also needs the penalty spring's smooth activation: with the
 hard one, the step each bounce lands on is discrete in e as well (see the test).
 """
 
+import dataclasses
 import functools
 import math
 
@@ -39,13 +40,13 @@ def noisy(observed, traj, seed):
     return observed.replace(pos=observed.pos + 0.01 * scale * noise)
 
 
-def penalty_observations(scene, num_steps, seed, every=20, **build):
+def penalty_observations(scene, num_steps, seed, every=20, contact=rb.Penalty(), **build):
     """Build ``scene`` with penalty contact (1 ms), roll it out and observe it noisily.
 
     ``build``: further ``Scene.build`` options. Returns (step, true params,
     initial state, noisy observation every ``every`` steps).
     """
-    model, truth, state = scene.build(contact="penalty", dt=1e-3, **build)
+    model, truth, state = scene.build(contact=contact, dt=1e-3, **build)
     step = rb.make_step(model)
     traj = jax.jit(lambda s, p: rb.rollout(step, s, p, num_steps, every=every))(state, truth)
     return step, truth, state, noisy(sysid.observe(traj, every=every), traj, seed=seed)
@@ -106,10 +107,10 @@ def test_transforms_round_trip_3d():
     back = sysid.from_unconstrained(unconstrained, params)
     for name in fields:
         np.testing.assert_allclose(getattr(back, name), getattr(params, name), rtol=1e-12, atol=1e-15)
-    principal = sysid.to_unconstrained(params.replace(inertia=params.inertia[:1]), "inertia",
+    principal = sysid.to_unconstrained(dataclasses.replace(params, inertia=params.inertia[:1]), "inertia",
                                        transforms={"inertia": "principal"})
     np.testing.assert_allclose(
-        sysid.from_unconstrained(principal, params.replace(inertia=params.inertia[:1]),
+        sysid.from_unconstrained(principal, dataclasses.replace(params, inertia=params.inertia[:1]),
                                  transforms={"inertia": "principal"}).inertia, params.inertia[:1], rtol=1e-12)
 
 
@@ -129,7 +130,7 @@ def test_any_unconstrained_inertia_is_physical(transform, size):
     _, params, _ = _two_body_params()
     u = np.random.default_rng(1).normal(scale=3.0, size=(500, size))
     inertia = np.asarray(sysid.from_unconstrained(
-        {"inertia": jnp.asarray(u)}, params.replace(inertia=jnp.zeros((500, 3, 3))),
+        {"inertia": jnp.asarray(u)}, dataclasses.replace(params, inertia=jnp.zeros((500, 3, 3))),
         transforms={"inertia": transform}).inertia)
     np.testing.assert_allclose(inertia, np.swapaxes(inertia, -1, -2), atol=1e-12 * np.abs(inertia).max())
     moments = np.linalg.eigvalsh(inertia)
@@ -167,7 +168,7 @@ def test_bad_fields_raise_value_error_naming_the_field():
     with pytest.raises(ValueError, match="'restitution'.*sigmoid"):
         sysid.to_unconstrained(params.replace(restitution=jnp.array([0.5, 1.0])), "restitution")
     with pytest.raises(ValueError, match="'inertia'.*triangle"):
-        sysid.to_unconstrained(params.replace(inertia=jnp.stack([jnp.diag(jnp.array([1.0, 1.0, 3.0]))] * 2)),
+        sysid.to_unconstrained(dataclasses.replace(params, inertia=jnp.stack([jnp.diag(jnp.array([1.0, 1.0, 3.0]))] * 2)),
                                "inertia")
     with pytest.raises(ValueError, match="'inv_inertia' is derived"):
         sysid.to_unconstrained(params, "inv_inertia")
@@ -396,7 +397,7 @@ def test_recover_restitution_of_bouncing_ball():
     # e = 0.68, where the loss falls about 0.1 per unit of e), so Adam wandered and
     # where it stopped hung on float rounding. With a 1 mm width the gradient
     # follows the loss's finite differences and crosses zero at e = 0.700.
-    step, truth, state, observed = penalty_observations(scene, 1200, seed=3, penalty_width=1e-3)
+    step, truth, state, observed = penalty_observations(scene, 1200, seed=3, contact=rb.Penalty(width=1e-3))
     start = truth.replace(restitution=truth.restitution * 0.5)
     # No early stopping: the loss sits on a plateau (0.020 -> 0.018) for ~150
     # steps before it falls to the noise floor, which fooled tol=1e-3, patience=100.

@@ -1,4 +1,4 @@
-"""Time of impact (``scene.build(time_of_impact=True)``): values and gradients against closed forms."""
+"""Time of impact (``scene.build(contact=rb.Impulse(time_of_impact=True))``): values and gradients against closed forms."""
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +17,7 @@ def two_balls(time_of_impact, dt=0.01, substeps=1):
     scene = rb.Scene(dim=3, gravity=(0.0, 0.0, 0.0))
     for _ in range(2):
         scene.add_body(rb.Sphere(0.1), mass=1.0, friction=0.0, restitution=1.0)
-    return scene.build(dt=dt, substeps=substeps, contact="impulse", time_of_impact=time_of_impact)
+    return scene.build(dt=dt, substeps=substeps, contact=rb.Impulse(time_of_impact=time_of_impact))
 
 
 def final_x2_function(time_of_impact, dt, substeps):
@@ -85,7 +85,7 @@ def wall_case(request):
         scene.add_body(shape, pos=(float(index),) + (0.0,) * (dim - 1), friction=0.0,
                        restitution=RESTITUTION, collision_category=2, collision_mask=1, **mass)
     dt = 1 / 60
-    model, params, state = scene.build(dt=dt, substeps=2, contact="impulse", time_of_impact=True)
+    model, params, state = scene.build(dt=dt, substeps=2, contact=rb.Impulse(time_of_impact=True))
     kinds = {group.kind for group in model.pair_groups}
     assert kinds == ({"sphere_plane", "capsule_plane", "points_plane"} if dim == 3
                      else {"sphere_plane", "points_plane"})
@@ -119,7 +119,7 @@ def test_circle_pair_head_on_in_2d():
     scene = rb.Scene(dim=2, gravity=(0.0, 0.0))
     scene.add_body(rb.Circle(0.1), mass=1.0, friction=0.0, restitution=1.0, pos=(0.0, 0.0), vel=(1.0, 0.0))
     scene.add_body(rb.Circle(0.1), mass=3.0, friction=0.0, restitution=1.0, pos=(0.5037, 0.0))
-    model, params, state = scene.build(dt=0.01, contact="impulse", time_of_impact=True)
+    model, params, state = scene.build(dt=0.01, contact=rb.Impulse(time_of_impact=True))
     final = rb.rollout(rb.make_step(model), state, params, 100)
     # Elastic 1:3 collision at t = 0.3037 s: velocities become −0.5 and +0.5.
     hit = 0.3037
@@ -134,7 +134,7 @@ def bouncing_ball():
     scene = rb.Scene(dim=3)
     scene.add_plane(restitution=0.8)
     scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.0, 0.0, 1.0), restitution=0.8)
-    return scene.build(dt=1 / 60, substeps=4, contact="impulse", time_of_impact=True)
+    return scene.build(dt=1 / 60, substeps=4, contact=rb.Impulse(time_of_impact=True))
 
 
 def test_bounce_apex_heights_at_sixty_hertz(bouncing_ball):
@@ -178,7 +178,7 @@ def test_fast_ball_does_not_tunnel():
     scene = rb.Scene(dim=3)
     scene.add_plane()
     scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.0, 0.0, 0.5), vel=(0.0, 0.0, -10.0))
-    model, params, state = scene.build(dt=1 / 60, contact="impulse", time_of_impact=True)
+    model, params, state = scene.build(dt=1 / 60, contact=rb.Impulse(time_of_impact=True))
     traj = rb.rollout(rb.make_step(model), state, params, 60)
     assert float(jnp.min(traj.pos[:, 0, 2])) > 0.09
 
@@ -187,8 +187,8 @@ def test_option_needs_impulse_contact_and_shows_in_summary():
     scene = rb.Scene(dim=3)
     scene.add_plane()
     scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.5))
-    with pytest.raises(ValueError, match="time_of_impact"):
+    with pytest.raises(ValueError, match="time_of_impact"), pytest.warns(DeprecationWarning):  # the flat keyword
         scene.build(dt=0.01, contact="penalty", time_of_impact=True)
-    model, _, _ = scene.build(dt=0.01, contact="impulse", time_of_impact=True)
+    model, _, _ = scene.build(dt=0.01, contact=rb.Impulse(time_of_impact=True))
     assert "time of impact" in model.summary()
     assert len(toi_rows(model)) == 0  # box–plane has no closed form: the solver keeps it

@@ -36,6 +36,7 @@ import jaxrb as rb
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 from jaxrb.bench.timing import final_state_fn, time_jitted
 from jaxrb.compile import jit
+from jaxrb.options import grouped
 
 HALF = 0.1
 DROP_CENTRE = 0.5  # m, initial centre height of the dropped box
@@ -184,7 +185,7 @@ def run_contact(name: str, contact: str, batch: int, num_steps: int, repeats: in
                 dtype=jnp.float32) -> ContactResult:
     factory, _, settings, _ = SCENES[name]
     build = settings[contact]
-    model, params, state = factory().build(contact=contact, dtype=dtype, **build)
+    model, params, state = factory().build(**grouped(dict(build, contact=contact, dtype=dtype)))
     step = rb.make_step(model)
     num_bodies = int(state.pos.shape[0])
     rest_error = None

@@ -56,6 +56,7 @@ from jaxrb import adjoint
 from jaxrb.bench.report import fmt_fixed, markdown_table
 from jaxrb.bench.timing import compile_jitted, time_alternated
 from jaxrb.step import _segment_length
+from jaxrb.options import grouped
 
 
 def box_bounce_scene():
@@ -164,7 +165,7 @@ def build(name: str, dtype="float32", batch: int = 1):
     if name not in SCENES:
         raise ValueError(f"gradients: unknown scene {name!r}; valid scenes are: {', '.join(SCENES)}")
     factory, _, settings = SCENES[name]
-    model, params, state = factory().build(dtype=jnp.dtype(dtype), **settings)
+    model, params, state = factory().build(**grouped(dict(settings, dtype=jnp.dtype(dtype))))
     if batch > 1:
         state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (batch,) + a.shape), state)
     return rb.make_step(model), params, state

@@ -89,6 +89,7 @@ import jaxrb as rb
 from jaxrb.bench.contact import column_scene, pyramid2d_scene
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_step, markdown_table
 from jaxrb.compile import jit
+from jaxrb.options import grouped
 
 HALF = 0.1  # half side of every box (m)
 BOX_MASS = 1.0
@@ -435,7 +436,7 @@ def tallest_stack(*, out_dir: Optional[str] = None, log=None, **overrides) -> Ca
     wall = time.perf_counter()
     rows, series, compile_s, tallest = [], [], 0.0, 0
     for height in settings["heights"]:
-        model, params, state = column_scene([BOX_MASS] * height).build(**settings["build"])
+        model, params, state = column_scene([BOX_MASS] * height).build(**grouped(settings["build"]))
         trace = simulate(model, params, state, _steps(settings["seconds"], float(params.dt)),
                          settings["every"], settings["chunk_steps"])
         compile_s += trace.compile_s
@@ -474,7 +475,7 @@ def pyramid_2d(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseR
     """
     settings = _settings("pyramid_2d", overrides)
     wall = time.perf_counter()
-    model, params, state = pyramid2d_scene(settings["rows"]).build(**settings["build"])
+    model, params, state = pyramid2d_scene(settings["rows"]).build(**grouped(settings["build"]))
     top = model.num_bodies - 1
     trace = simulate(model, params, state, _steps(settings["seconds"], float(params.dt)),
                      settings["every"], settings["chunk_steps"])
@@ -522,7 +523,7 @@ def mass_ratio(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseR
     for ratio in settings["ratios"]:
         for substeps in settings["substeps"]:
             build = {**settings["build"], "substeps": substeps}
-            model, params, state = column_scene([BOX_MASS, BOX_MASS * ratio, BOX_MASS]).build(**build)
+            model, params, state = column_scene([BOX_MASS, BOX_MASS * ratio, BOX_MASS]).build(**grouped(build))
             trace = simulate(model, params, state, _steps(settings["seconds"], float(params.dt)),
                              settings["every"], settings["chunk_steps"])
             compile_s += trace.compile_s
@@ -595,7 +596,7 @@ def impact(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseResul
     speeds = np.asarray(settings["speeds"], dtype=np.float64)
     rows, compile_s, fastest, resting, curves = [], 0.0, {}, {}, {}
     for toi in settings["time_of_impact"]:
-        model, params, state = impact_scene().build(time_of_impact=bool(toi), **settings["build"])
+        model, params, state = impact_scene().build(**grouped(dict(settings["build"], time_of_impact=bool(toi))))
         dtype = state.pos.dtype
         num_steps = _steps(settings["seconds"], float(params.dt))
         pos = np.asarray(state.pos).copy()
@@ -749,7 +750,7 @@ def overlap_recovery(*, out_dir: Optional[str] = None, log=None, **overrides) ->
     """
     settings = _settings("overlap_recovery", overrides)
     wall = time.perf_counter()
-    model, params, state = overlapped_pyramid_scene(settings["rows"], settings["overlap"]).build(**settings["build"])
+    model, params, state = overlapped_pyramid_scene(settings["rows"], settings["overlap"]).build(**grouped(settings["build"]))
     trace = simulate(model, params, state, _steps(settings["seconds"], float(params.dt)),
                      settings["every"], settings["chunk_steps"])
     total_mass = float(jnp.sum(params.mass))
@@ -813,7 +814,7 @@ def long_rest(*, out_dir: Optional[str] = None, log=None, **overrides) -> CaseRe
     """
     settings = _settings("long_rest", overrides)
     wall = time.perf_counter()
-    model, params, state = column_scene([BOX_MASS] * settings["count"]).build(**settings["build"])
+    model, params, state = column_scene([BOX_MASS] * settings["count"]).build(**grouped(settings["build"]))
     start = np.asarray(state.pos)
 
     def reduce(summary):

@@ -7,12 +7,12 @@ switching (the impact-time term of a bounce, for one). The smoothing knobs
 trade a bias in the forward result for a landscape without those jumps:
 
 * penalty contact: the softplus activation of width w
-  (``scene.build(penalty_width=w)``, ``Params.penalty_width``) and the
+  (``rb.Penalty(width=w)``, ``Params.penalty_width``) and the
   regularised Coulomb friction of slip velocity v_reg
-  (``penalty_friction="regularized", friction_velocity=v_reg``,
+  (``rb.Penalty(friction="regularized", friction_velocity=v_reg)``,
   ``Params.friction_velocity``);
 * impulse contact: the soft complementarity σ (m/s) of the normal clamp
-  (``impulse_smoothing=σ``, ``Params.impulse_smoothing``).
+  (``rb.Impulse(smoothing=σ)``, ``Params.impulse_smoothing``).
 
 For every knob value of a sweep this benchmark runs K worlds (``jax.vmap``)
 whose one jittered parameter is spread evenly over a small window, and
@@ -91,6 +91,7 @@ import numpy as np
 import jaxrb as rb
 from jaxrb.bench.report import fmt_sci, markdown_table
 from jaxrb.bench.timing import Stopwatch, compile_jitted, time_compiled
+from jaxrb.options import grouped
 
 G = 9.81
 RADIUS = 0.1
@@ -385,7 +386,7 @@ def run_sweep(sweep: Sweep, worlds: int, knobs: Optional[Sequence[float]] = None
         build = sweep.sharp_build if sharp else sweep.build
         key = (sweep.scenario, sweep.contact, tuple(sorted(build.items())), worlds)
         if key not in cache:
-            model, params, state = scenario.make_scene().build(contact=sweep.contact, **build)
+            model, params, state = scenario.make_scene().build(**grouped(dict(build, contact=sweep.contact)))
             num_steps = int(round(scenario.horizon / float(params.dt)))
             fn = outcome_and_derivative_fn(scenario, model, state, num_steps)
             args = (jnp.asarray(thetas, params.dt.dtype), jnp.asarray(tangents, params.dt.dtype), params)

@@ -64,6 +64,7 @@ from jaxrb.bench.free_body import (TUMBLE_ANGVEL, TUMBLE_INERTIA, TUMBLE_CONFIGS
 from jaxrb.bench.pareto import pareto_front, plot_speed_vs_error
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 from jaxrb.bench.timing import Stopwatch, compile_jitted, final_state_fn, time_compiled, time_jitted
+from jaxrb.options import grouped
 
 GRAVITY = 9.81
 RADIUS = 0.1  # m, the bouncing and rolling spheres
@@ -591,7 +592,7 @@ def build(scene: str, config: dict):
         options.update(penalty_friction=config["penalty_friction"])
         if config["smooth"]:
             options.update(penalty_width=1e-3)
-    return factories[scene]().build(**options)
+    return factories[scene]().build(**grouped(options))
 
 
 def trajectory_error(scene: str, traj, state0, h: float, exact) -> float:
