@@ -85,7 +85,8 @@ def run_scene_file(path, num_steps: int, out_dir, *, every: int = 1, animation: 
     """Simulate a scene file and write ``trajectory.npz``, an animation and ``report.txt``.
 
     Args:
-        path: a ``.json`` jaxrb scene or an MJCF ``.xml`` (see :mod:`jaxrb.scenefile`).
+        path: a ``.json`` jaxrb scene (see :mod:`jaxrb.scenefile`) or an MJCF ``.xml``
+            (see :mod:`jaxrb.mjcf`).
         num_steps: steps to simulate (a multiple of ``every``).
         out_dir: output folder, created if needed.
         every: keep every ``every``-th state in the trajectory.

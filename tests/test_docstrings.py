@@ -8,11 +8,11 @@ What is public (walked by :func:`public_symbols`, pure introspection, no tracing
   the public modules ``jaxrb.quaternion``, ``jaxrb.math``, ``jaxrb.shapes``,
   ``jaxrb.dynamics``, ``jaxrb.integrators``, ``jaxrb.step``, ``jaxrb.types``,
   ``jaxrb.scene``, ``jaxrb.sysid``, ``jaxrb.sweep``, and ``jaxrb.render``,
-  ``jaxrb.scenefile`` and ``jaxrb.analytic`` when those exist (they are picked
-  up automatically), plus any module named in ``jaxrb.__all__``. Names a
-  module merely imports (``jax``, ``numpy``, another jaxrb module's function)
-  are checked where they are defined; only objects whose ``__module__`` is
-  inside ``jaxrb`` count;
+  ``jaxrb.scenefile``, ``jaxrb.scenefile_common``, ``jaxrb.mjcf`` and
+  ``jaxrb.analytic`` when those exist (they are picked up automatically),
+  plus any module named in ``jaxrb.__all__``. Names a module merely imports
+  (``jax``, ``numpy``, another jaxrb module's function) are checked where they
+  are defined; only objects whose ``__module__`` is inside ``jaxrb`` count;
 * the public methods and properties of those classes (``Scene.add_body``,
   ``Model.summary``, ``State.replace``, ...), dunder methods excluded.
 
@@ -69,7 +69,7 @@ import jaxrb
 PUBLIC_MODULES = ("quaternion", "math", "shapes", "dynamics", "integrators", "step", "types",
                   "scene", "sysid", "sweep")
 # Covered as soon as they exist (written alongside this test).
-OPTIONAL_MODULES = ("render", "scenefile", "analytic")
+OPTIONAL_MODULES = ("render", "scenefile", "scenefile_common", "mjcf", "analytic")
 
 # Parameter and field names that hold arrays in this codebase (grepped from the
 # public signatures): their entries must give a shape.

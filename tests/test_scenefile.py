@@ -1,5 +1,6 @@
 """Scene files: JSON round trips, malformed files, and MJCF import checked against MuJoCo."""
 
+import ast
 import copy
 import inspect
 import json
@@ -11,7 +12,9 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
+from jaxrb import mjcf
 from jaxrb import scenefile as sf
+from jaxrb import scenefile_common
 
 EXAMPLE = pathlib.Path(__file__).resolve().parent.parent / "examples" / "box_drop.xml"
 
@@ -170,7 +173,7 @@ def test_every_add_body_and_build_keyword_is_typed():
     assert body_keys == set(sf._body_field_checkers(3))
     plane_keys = set(inspect.signature(rb.Scene.add_plane).parameters) - {"self"}
     assert plane_keys == set(sf._plane_field_checkers(3))
-    kinds = sf._build_kinds()
+    kinds = scenefile_common._build_kinds()
     assert set(kinds) == (set(inspect.signature(rb.Scene.build).parameters) - {"self", "deprecated"}
                           | set(rb.options.FLAT_KEYWORDS))
     assert all(kind.rstrip("?") != "any" for kind in kinds.values()), kinds
@@ -275,6 +278,22 @@ def test_suffixes(tmp_path):
         sf.save_scene(tmp_path / "scene.json", scene)
 
 
+def test_modules_split_without_a_cycle():
+    """JSON (scenefile), MJCF (mjcf) and what they share (scenefile_common): the old names
+    still import from jaxrb.scenefile, and neither mjcf nor scenefile_common imports scenefile."""
+    assert sf.SceneFile is scenefile_common.SceneFile is rb.SceneFile
+    assert sf.scene_from_mjcf is mjcf.scene_from_mjcf
+    for module, forbidden in ((mjcf, {"jaxrb.scenefile"}),
+                              (scenefile_common, {"jaxrb.scenefile", "jaxrb.mjcf"})):
+        tree = ast.parse(pathlib.Path(module.__file__).read_text())
+        imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import)
+                    for alias in node.names}
+        imported |= {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+        imported |= {f"{node.module}.{alias.name}" for node in ast.walk(tree)
+                     if isinstance(node, ast.ImportFrom) for alias in node.names}
+        assert not imported & forbidden, (module.__name__, imported & forbidden)
+
+
 # --------------------------------------------------------------------------- #
 # MJCF
 # --------------------------------------------------------------------------- #
@@ -338,7 +357,7 @@ def test_mjcf_poses_and_inertia_match_mujoco(compiler):
     np.testing.assert_allclose(offset, data.geom_xpos[0] @ plane_z, atol=1e-12)
     for index in range(model.num_bodies):
         body = index + 1
-        rotation = sf._rotation(np.asarray(state.quat[index]))
+        rotation = mjcf._rotation(np.asarray(state.quat[index]))
         mj_rotation = data.ximat[body].reshape(3, 3)
         np.testing.assert_allclose(state.pos[index], data.xipos[body], atol=1e-12)
         np.testing.assert_allclose(params.mass[index], mj_model.body_mass[body], rtol=1e-12)
