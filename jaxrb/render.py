@@ -13,7 +13,9 @@ Pictures of a scene:
   capsules striped so spin shows), point masses as dots, planes as a
   translucent patch clipped to the view. ``contacts=True`` adds the active
   contacts of :func:`jaxrb.detect_contacts`: a dot and a short normal arrow
-  each, red when colliding, green when resting, orange when separating.
+  each, red when colliding, green when resting, orange when separating
+  (:data:`STATUS_COLORS`). Bodies take :data:`BODY_COLORS` (blues, purples,
+  greys) unless ``colors`` is given, so no body reads as a contact status.
 * :func:`animate` ``(model, params, traj, *, every=1, fps=30, ...) -> FuncAnimation``
   animates a trajectory from :func:`jaxrb.rollout` with axis limits fixed over
   the whole run and the time in the title. Poses (and contacts) of all frames
@@ -67,6 +69,11 @@ __all__ = ["animate", "draw", "figure_pixels", "plot_angular_momentum", "plot_en
            "plot_series", "save_animation", "to_html"]
 
 STATUS_COLORS = {COLLIDING: "tab:red", RESTING: "tab:green", SEPARATING: "tab:orange"}
+# Default body colours, cycled: blues, purples and greys only, so that no body reads as
+# a contact status (matplotlib's default cycle starts blue, orange, green, red). In
+# CIELAB each is at least 70 away from every status colour; the status colours are
+# 40 apart among themselves (red and orange).
+BODY_COLORS = ("tab:blue", "tab:purple", "tab:cyan", "tab:gray", "#5254a3", "#9c9ede")
 STATUS_NAMES = {COLLIDING: "colliding", RESTING: "resting", SEPARATING: "separating"}
 SAVE_SUFFIXES = (".gif", ".mp4", ".html")
 
@@ -142,13 +149,12 @@ def _check_extent(extent, dim: int, caller: str):
 
 
 def _body_colors(colors, count: int, caller: str):
-    """One RGBA tuple per body from None (the property cycle), one colour, or a sequence."""
+    """One RGBA tuple per body from None (:data:`BODY_COLORS`, cycled), one colour, or a
+    sequence (used as given)."""
     from matplotlib import colors as mcolors
-    import matplotlib
 
     if colors is None:
-        cycle = matplotlib.rcParams["axes.prop_cycle"].by_key().get("color") or ["C0"]
-        return [mcolors.to_rgba(cycle[i % len(cycle)]) for i in range(count)]
+        return [mcolors.to_rgba(BODY_COLORS[i % len(BODY_COLORS)]) for i in range(count)]
     if mcolors.is_color_like(colors):
         return [mcolors.to_rgba(colors)] * count
     try:
@@ -732,7 +738,10 @@ def draw(model: Model, params: Params, state: State, ax=None, *, contacts: bool 
             status) and a legend of the status colours. A model built with
             ``contact="none"`` has no pair table, so it shows none.
         colors: one matplotlib colour for all bodies or a sequence of n, one
-            per body; default the axes property cycle.
+            per body, used as given; default :data:`BODY_COLORS` cycled
+            (blues, purples, greys: apart from the red, green and orange of
+            the contact statuses). For matplotlib's cycle pass
+            ``colors=[f"C{i}" for i in range(model.num_bodies)]``.
         extent: fixed limits (xmin, xmax, ymin, ymax) in 2D or (xmin, xmax,
             ymin, ymax, zmin, zmax) in 3D; default: the bodies and nearby
             planes plus a margin.

@@ -245,6 +245,51 @@ def test_every_shape_draws_in_2d(every_shape_2d):
     assert x_low < -0.45 and x_high > 0.6 and y_low < 0.0 and y_high > 0.6
 
 
+def lab(color):
+    """CIELAB (D65) of a matplotlib colour: distances of ~40 or less read as one hue family."""
+    rgb = np.array(to_rgba(color)[:3])
+    linear = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722],
+                    [0.0193, 0.1192, 0.9505]]) @ linear / np.array([0.95047, 1.0, 1.08883])
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def test_default_body_colours_keep_clear_of_the_status_colours():
+    # Issue 61: the default colours were the property cycle (blue, orange, green, red, ...),
+    # so the second body was the orange of "separating" and the third the green of "resting".
+    scene = rb.Scene(dim=2)
+    for k in range(8):  # more bodies than the palette has colours: it cycles
+        scene.add_body(rb.Box((0.05, 0.05)), mass=1.0, pos=(0.2 * k, 0.5))
+    model, params, state = scene.build(dt=1 / 60, contact="none")
+    ax = render.draw(model, params, state, ax=new_axes(2))
+    drawn = [artists_with_gid(ax, f"jaxrb.body{k}")[0].get_facecolor() for k in range(8)]
+    status = [lab(color) for color in render.STATUS_COLORS.values()]
+    # The status colours are 40 apart among themselves (red, orange); bodies keep 60 from each.
+    closest = min(np.linalg.norm(lab(color) - s) for color in drawn for s in status)
+    assert closest > 60.0, closest
+    assert len({tuple(np.round(c, 6)) for c in drawn}) == len(render.BODY_COLORS)
+    assert to_rgba(drawn[1])[:3] == to_rgba(render.BODY_COLORS[1])[:3]
+    # 3D meshes take the same default colours (their faces shaded darker or lighter).
+    box_model, box_params, box_state = scene_3d_box()
+    ax = render.draw(box_model, box_params, box_state, ax=new_axes(3))
+    render.figure_pixels(ax.figure)
+    faces = artists_with_gid(ax, "jaxrb.body0")[0].get_facecolor()[:, :3]
+    blue = np.array(to_rgba(render.BODY_COLORS[0])[:3])
+    scale = faces / blue
+    assert np.allclose(scale, scale[:, :1], atol=1e-6)  # every face a shade of the same blue
+    # Colours the user gives are used as they are, status-like or not.
+    ax = render.draw(model, params, state, ax=new_axes(2), colors="tab:orange")
+    assert to_rgba(artists_with_gid(ax, "jaxrb.body0")[0].get_facecolor())[:3] == \
+        to_rgba("tab:orange")[:3]
+
+
+def scene_3d_box():
+    scene = rb.Scene(dim=3)
+    scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=1.0, pos=(0.0, 0.0, 0.5))
+    return scene.build(dt=1 / 60, contact="none")
+
+
 # --------------------------------------------------------------------------------------
 # Contacts
 
