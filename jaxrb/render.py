@@ -8,10 +8,12 @@ Pictures of a scene:
 * :func:`draw` ``(model, params, state, ax=None, *, contacts=False, ...) -> Axes``
   draws one world. 2D: boxes and polygons as polygons, circles with a radius
   line that shows their rotation, point masses as dots (size by mass) with
-  spokes to the centre of mass, half-planes as a shaded band under their
-  line. 3D: boxes, spheres and capsules as shaded meshes (spheres and
-  capsules striped so spin shows), point masses as dots, planes as a
-  translucent patch clipped to the view. ``contacts=True`` adds the active
+  spokes to the centre of mass, half-planes as their solid side shaded
+  across the view under the stretch of their line that borders free space
+  (two tilted planes meeting in a V show a V-shaped valley). 3D: boxes,
+  spheres and capsules as shaded meshes (spheres and capsules striped so spin
+  shows), point masses as dots, planes as translucent patches clipped to the
+  view and to the free side of the other planes. ``contacts=True`` adds the active
   contacts of :func:`jaxrb.detect_contacts`: a dot and a short normal arrow
   each, red when colliding, green when resting, orange when separating
   (:data:`STATUS_COLORS`). Bodies take :data:`BODY_COLORS` (blues, purples,
@@ -34,7 +36,7 @@ Artists carry ids (``artist.get_gid()``) so they can be found again:
 ``"jaxrb.contact_points"`` (one offset per active contact) and
 ``"jaxrb.contact_normals"`` (three segments per arrow: shaft and two barbs).
 A 3D mesh keeps the world quads it shows, (F, 4, 3), in ``artist.jaxrb_faces``
-and the normals artist its world segments, (3k, 2, dim), in
+(a 3D plane its polygon, (1, k, 3)), and the normals artist its world segments, (3k, 2, dim), in
 ``artist.jaxrb_segments`` (mplot3d has no public getter for 3D data).
 
 Conventions: ``State.pos`` is each body's centre of mass; a shape is drawn in
@@ -425,6 +427,87 @@ def _plane_polygon(normal: np.ndarray, offset: float, low: np.ndarray, high: np.
     return points[order]
 
 
+def _clip_polygon(points: np.ndarray, normal: np.ndarray, offset: float,
+                  tol: float = 0.0) -> np.ndarray:
+    """The part of a convex polygon (k, dim), vertices in order, where normal·x − offset <= tol.
+
+    Sutherland–Hodgman against one half-space; (m, dim), m = 0 when nothing is left.
+    """
+    side = points @ normal - offset
+    kept = []
+    for i in range(len(points)):
+        j = (i + 1) % len(points)
+        if side[i] <= tol:
+            kept.append(points[i])
+        if (side[i] - tol) * (side[j] - tol) < 0.0:
+            kept.append(points[i] + (side[i] - tol) / (side[i] - side[j]) * (points[j] - points[i]))
+    return np.asarray(kept, dtype=np.float64).reshape(-1, points.shape[1])
+
+
+def _unit_planes(model: Model) -> list:
+    """(normal, offset) of every plane with a unit normal, as float64."""
+    planes = []
+    for normal, offset in model.planes:
+        normal = np.asarray(normal, dtype=np.float64)
+        length = float(np.linalg.norm(normal))
+        planes.append((normal / length, float(offset) / length))
+    return planes
+
+
+def _plane_pieces_2d(planes: list, low: np.ndarray, high: np.ndarray) -> list:
+    """What shows of each half-plane in the view [low, high]: (solid, line) per plane.
+
+    ``solid`` (k, 2) is the view rectangle cut to the plane's solid side
+    normal·x <= offset (k = 0 when the view misses it); ``line`` (2, 2) is the
+    stretch of normal·x = offset inside the view and on the free side of every
+    other plane (the surface a body can touch), or None. So two tilted planes
+    that meet in a V show a V-shaped valley, not two crossing lines.
+    """
+    rectangle = np.array([[low[0], low[1]], [high[0], low[1]], [high[0], high[1]],
+                          [low[0], high[1]]])
+    tol = 1e-12 * float(np.max(high - low))
+    pieces = []
+    for index, (normal, offset) in enumerate(planes):
+        solid = _clip_polygon(rectangle, normal, offset, tol)
+        foot = offset * normal
+        tangent = np.array([-normal[1], normal[0]])
+        # x(s) = foot + s·tangent; keep the s with each bound a·x(s) <= b.
+        bounds = [(np.eye(2)[axis], high[axis]) for axis in range(2)]
+        bounds += [(-np.eye(2)[axis], -low[axis]) for axis in range(2)]
+        bounds += [(-other, -other_offset) for k, (other, other_offset) in enumerate(planes)
+                   if k != index]
+        start, stop = -np.inf, np.inf
+        for a, b in bounds:
+            slope, room = float(a @ tangent), float(b - a @ foot) + tol
+            if abs(slope) < 1e-15:
+                if room < 0.0:
+                    start, stop = np.inf, -np.inf
+            elif slope > 0.0:
+                stop = min(stop, room / slope)
+            else:
+                start = max(start, room / slope)
+        line = (np.stack([foot + start * tangent, foot + stop * tangent])
+                if start < stop else None)
+        pieces.append((solid, line))
+    return pieces
+
+
+def _plane_pieces_3d(planes: list, low: np.ndarray, high: np.ndarray) -> list:
+    """Each plane cut to the view box and to the free side of every other plane:
+    (k, 3) ordered vertices, or None when nothing of it shows."""
+    tol = 1e-12 * float(np.max(high - low))
+    pieces = []
+    for index, (normal, offset) in enumerate(planes):
+        polygon = _plane_polygon(normal, offset, low, high)
+        for k, (other, other_offset) in enumerate(planes):
+            if polygon is None or k == index:
+                continue
+            polygon = _clip_polygon(polygon, -other, -other_offset, tol)
+            polygon = polygon if len(polygon) >= 3 else None
+        pieces.append(polygon)
+    return pieces
+
+
 class _Painter:
     """Owns the artists of one scene on one Axes and moves them to any frame."""
 
@@ -470,31 +553,27 @@ class _Painter:
     def _draw_planes(self):
         from matplotlib import patches
         self.plane_artists = []
-        low, high = self.low, self.high
-        for index, (normal, offset) in enumerate(self.model.planes):
-            normal = np.asarray(normal, dtype=np.float64)
-            gid = f"jaxrb.plane{index}"
-            if self.dim == 2:
-                centre = 0.5 * (low + high)
-                foot = centre - (normal @ centre - offset) * normal
-                tangent = np.array([-normal[1], normal[0]])
-                reach = 4.0 * float(np.linalg.norm(high - low))
-                band = 0.06 * float(np.max(high - low))
-                ends = np.stack([foot - reach * tangent, foot + reach * tangent])
-                shade = np.concatenate([ends, ends[::-1] - band * normal])
-                self.ax.add_patch(patches.Polygon(shade, closed=True, facecolor=_PLANE_FACE,
-                                                  edgecolor="none", zorder=1, gid=gid))
-                self.ax.plot(ends[:, 0], ends[:, 1], color=_PLANE_EDGE, lw=1.5, zorder=1.1, gid=gid)
-            else:
-                from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-                polygon = _plane_polygon(normal, float(offset), low, high)
-                if polygon is None:
-                    continue
-                artist = Poly3DCollection([polygon], facecolors=[_PLANE_FACE],
-                                          edgecolors=[_PLANE_EDGE], linewidths=0.8, gid=gid)
-                artist.jaxrb_normal = normal
-                self.ax.add_collection3d(artist, autolim=False)
-                self.plane_artists.append(artist)
+        planes = _unit_planes(self.model)
+        if self.dim == 2:
+            for index, (solid, line) in enumerate(_plane_pieces_2d(planes, self.low, self.high)):
+                gid = f"jaxrb.plane{index}"
+                if len(solid) >= 3:
+                    self.ax.add_patch(patches.Polygon(solid, closed=True, facecolor=_PLANE_FACE,
+                                                      edgecolor="none", zorder=1, gid=gid))
+                if line is not None:
+                    self.ax.plot(line[:, 0], line[:, 1], color=_PLANE_EDGE, lw=1.5, zorder=1.1,
+                                 gid=gid)
+            return
+        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+        for index, polygon in enumerate(_plane_pieces_3d(planes, self.low, self.high)):
+            if polygon is None:
+                continue
+            artist = Poly3DCollection([polygon], facecolors=[_PLANE_FACE], edgecolors=[_PLANE_EDGE],
+                                      linewidths=0.8, gid=f"jaxrb.plane{index}")
+            artist.jaxrb_normal = planes[index][0]
+            artist.jaxrb_faces = polygon[None]
+            self.ax.add_collection3d(artist, autolim=False)
+            self.plane_artists.append(artist)
 
     def _contact_legend(self):
         from matplotlib.lines import Line2D

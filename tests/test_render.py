@@ -290,6 +290,69 @@ def scene_3d_box():
     return scene.build(dt=1 / 60, contact="none")
 
 
+def test_two_tilted_half_planes_show_a_v_not_an_x():
+    # Issue 61: each half-plane was a line across the whole view with a thin band under
+    # it, so a valley of two planes tilted 30 degrees showed as two crossing lines.
+    tilt = np.radians(30.0)
+    scene = rb.Scene(dim=2)
+    scene.add_plane(normal=(np.sin(tilt), np.cos(tilt)))   # left slope, y = -x tan 30
+    scene.add_plane(normal=(-np.sin(tilt), np.cos(tilt)))  # right slope, y = x tan 30
+    scene.add_body(rb.Circle(0.05), mass=1.0, pos=(0.0, 0.1))
+    model, params, state = scene.build(dt=1 / 60, contact="none")
+    extent = (-0.6, 0.6, -0.3, 0.5)
+    ax = render.draw(model, params, state, ax=new_axes(2, (6.0, 4.0)), extent=extent)
+    corners = np.array([(x, y) for x in extent[:2] for y in extent[2:]])
+    for index, (normal, offset) in enumerate(model.planes):
+        normal = np.asarray(normal)
+        other = np.asarray(model.planes[1 - index][0])
+        artists = artists_with_gid(ax, f"jaxrb.plane{index}")
+        (fill,) = [a for a in artists if hasattr(a, "get_xy")]
+        (line,) = [a for a in artists if hasattr(a, "get_xydata")]
+        # The fill is the plane's whole solid side in view: every vertex on that side,
+        # every view corner on that side among its vertices.
+        vertices = fill.get_xy()
+        assert np.all(vertices @ normal - offset <= 1e-9)
+        for corner in corners[corners @ normal - offset < 0.0]:
+            assert np.min(np.linalg.norm(vertices - corner, axis=1)) < 1e-9, corner
+        # The line: on the plane, inside the view, and only where the other plane is open,
+        # so from the valley floor (0, 0) up its own slope to the edge of the view.
+        ends = line.get_xydata()
+        assert np.allclose(ends @ normal, offset, atol=1e-9)
+        assert np.all(ends >= np.array(extent[0::2]) - 1e-9)
+        assert np.all(ends <= np.array(extent[1::2]) + 1e-9)
+        assert np.all(ends @ other >= -1e-9)
+        assert np.min(np.linalg.norm(ends, axis=1)) < 1e-9
+        assert np.max(np.abs(ends[:, 0])) == pytest.approx(0.6)
+        assert np.all(ends[:, 0] * (1 if index == 0 else -1) <= 1e-9)  # left slope at x <= 0
+    pixels = render.figure_pixels(ax.figure).astype(float)
+
+    def colour_at(point):
+        row, column = pixel_of(ax, point)
+        return pixels[row, column, :3]
+
+    # Solid under one slope only (below the other's line continued), solid under both,
+    # and open space in the V.
+    one, both, open_ = colour_at((0.5, 0.1)), colour_at((0.0, -0.2)), colour_at((-0.3, 0.35))
+    assert np.ptp(one) < 10.0 and one.max() < 235.0, one
+    assert both.max() < one.min(), (both, one)
+    assert np.abs(open_ - 255.0).max() < 1.0, open_
+
+    # 3D: the same valley along y; each plane's patch stops where the other plane's solid starts.
+    scene = rb.Scene(dim=3)
+    scene.add_plane(normal=(np.sin(tilt), 0.0, np.cos(tilt)))
+    scene.add_plane(normal=(-np.sin(tilt), 0.0, np.cos(tilt)))
+    scene.add_body(rb.Sphere(0.05), mass=1.0, pos=(0.0, 0.0, 0.1))
+    model, params, state = scene.build(dt=1 / 60, contact="none")
+    ax = render.draw(model, params, state, ax=new_axes(3), extent=(-0.6, 0.6, -0.3, 0.3, -0.3, 0.5))
+    for index, (normal, offset) in enumerate(model.planes):
+        (patch,) = artists_with_gid(ax, f"jaxrb.plane{index}")
+        (polygon,) = patch.jaxrb_faces
+        assert np.allclose(polygon @ np.asarray(normal), offset, atol=1e-9)
+        assert np.all(polygon @ np.asarray(model.planes[1 - index][0]) >= -1e-9)
+        assert np.all(polygon[:, 0] * (1 if index == 0 else -1) <= 1e-9)
+        assert np.ptp(polygon[:, 1]) == pytest.approx(0.6) and np.max(polygon[:, 2]) > 0.3
+
+
 # --------------------------------------------------------------------------------------
 # Contacts
 
