@@ -35,6 +35,15 @@ Artists carry ids (``artist.get_gid()``) so they can be found again:
 ``"jaxrb.body<i>"`` for body ``i``, ``"jaxrb.plane<j>"`` for plane ``j``,
 ``"jaxrb.contact_points"`` (one offset per active contact) and
 ``"jaxrb.contact_normals"`` (three segments per arrow: shaft and two barbs).
+In 3D, contacts hidden behind a solid body have their own pair,
+``"jaxrb.contact_points_hidden"`` and ``"jaxrb.contact_normals_hidden"``:
+mplot3d paints whole artists in z-order, not points by depth, so each frame
+the line of sight from every contact to the camera is traced through the
+boxes, spheres and capsules, and a contact behind one is drawn faint (alpha
+0.3) under all bodies, which then cover its dot; visible contacts are drawn
+over the bodies. Planes (translucent) and point masses hide nothing. Turning
+the view by hand does not redo this; draw again, or call
+``anim.jaxrb_painter.set_frame(i)``.
 A 3D mesh keeps the world quads it shows, (F, 4, 3), in ``artist.jaxrb_faces``
 (a 3D plane its polygon, (1, k, 3)), and the normals artist its world segments, (3k, 2, dim), in
 ``artist.jaxrb_segments`` (mplot3d has no public getter for 3D data).
@@ -270,10 +279,13 @@ class _Geometry:
         extent_points: (k, dim) points whose hull, grown by ``pad``, holds the body.
         pad: () radius added around ``extent_points`` for round shapes.
         masses: (k,) point masses, for dot sizes.
+        solid: what hides a contact behind it in 3D: ("box", (3,) half extents),
+            ("round", radius, half_length) for spheres (0) and capsules along
+            z, or None (2D, point masses, bare bodies).
     """
 
     def __init__(self, shape, dim: int):
-        self.faces = self.stripe = self.masses = None
+        self.faces = self.stripe = self.masses = self.solid = None
         self.radius = self.pad = 0.0
         zero = np.zeros((1, dim))
         if shape is None:
@@ -299,6 +311,7 @@ class _Geometry:
             self.faces = corners[_BOX_FACES]
             self.stripe = np.zeros(len(self.faces), dtype=int)
             self.local = self.extent_points = corners
+            self.solid = ("box", np.asarray(shape.half_extents, dtype=np.float64))
         elif dim == 3 and isinstance(shape, (Sphere, Capsule)):
             self.kind = "mesh"
             half_length = float(shape.half_length) if isinstance(shape, Capsule) else 0.0
@@ -306,6 +319,7 @@ class _Geometry:
             self.local = self.faces.reshape(-1, 3)
             self.extent_points = np.array([[0.0, 0.0, -half_length], [0.0, 0.0, half_length]])
             self.pad = float(shape.radius)
+            self.solid = ("round", float(shape.radius), half_length)
         else:
             raise ValueError(f"render: cannot draw a {type(shape).__name__} in {dim}D")
 
@@ -508,6 +522,94 @@ def _plane_pieces_3d(planes: list, low: np.ndarray, high: np.ndarray) -> list:
     return pieces
 
 
+# A contact counts as hidden when the line of sight from it to the eye runs through a
+# solid body for more than this fraction of the body's smallest half-size (so contacts a
+# hair inside the surface, as penetrating contacts are, stay visible).
+_HIDDEN_CHORD = 0.1
+_HIDDEN_ALPHA = 0.3
+_HIDDEN_ZORDER = 1.5  # under every body (2 to 3), over a plane seen from its open side (1)
+
+
+def _box_chord(points: np.ndarray, toward_eye: np.ndarray, origin: np.ndarray,
+               rotation: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(k,) length of each ray points + s·toward_eye, s >= 0, inside the box (slab test)."""
+    half = half - 1e-6 * float(np.max(half))  # a ray along a face does not enter the box
+    local = (points - origin) @ rotation  # Rᵀ(p − origin), row-wise
+    direction = toward_eye @ rotation
+    enter = np.zeros(len(points))
+    leave = np.full(len(points), np.inf)
+    for axis in range(3):
+        if abs(direction[axis]) < 1e-12:
+            outside = np.abs(local[:, axis]) >= half[axis]
+            leave = np.where(outside, -np.inf, leave)
+            continue
+        first = (-half[axis] - local[:, axis]) / direction[axis]
+        second = (half[axis] - local[:, axis]) / direction[axis]
+        enter = np.maximum(enter, np.minimum(first, second))
+        leave = np.minimum(leave, np.maximum(first, second))
+    return np.maximum(leave - enter, 0.0)
+
+
+def _round_chord(points: np.ndarray, toward_eye: np.ndarray, origin: np.ndarray,
+                 rotation: np.ndarray, radius: float, half_length: float,
+                 reach: float) -> np.ndarray:
+    """(k,) length of each ray points + s·toward_eye, 0 <= s <= reach, inside the ball of
+    the capsule (a sphere when half_length is 0) around the axis point nearest the ray:
+    a lower bound of the length inside the capsule, exact for a sphere."""
+    axis = rotation[:, 2] * half_length
+    start = origin - axis
+    ray, segment = reach * toward_eye, 2.0 * axis
+    rel = points - start
+    a, b, e = ray @ ray, ray @ segment, segment @ segment
+    c, f = rel @ ray, rel @ segment
+    # Closest points of the segments points + s·ray and start + t·segment (s, t in [0, 1]).
+    if e <= 1e-300:
+        t = np.zeros(len(points))
+    else:
+        denom = a * e - b * b
+        s = (np.clip((b * f - c * e) / denom, 0.0, 1.0) if denom > 1e-12 * a * e
+             else np.zeros(len(points)))
+        t = np.clip((b * s + f) / e, 0.0, 1.0)
+    centre = start + t[:, None] * segment
+    along = (centre - points) @ toward_eye
+    miss = np.einsum("ki,ki->k", centre - points, centre - points) - along ** 2
+    radius = radius * (1.0 - 1e-6)
+    half_chord = np.sqrt(np.maximum(radius ** 2 - miss, 0.0))
+    inside = np.where(miss < radius ** 2, along + half_chord - np.maximum(along - half_chord, 0.0),
+                      0.0)
+    return np.maximum(inside, 0.0)
+
+
+def _hidden_points(points: np.ndarray, toward_eye: np.ndarray, geometries, origin: np.ndarray,
+                   rotation: np.ndarray, reach: float) -> np.ndarray:
+    """(k,) bool: the line of sight from each point (k, 3) toward the eye (a unit direction,
+    the view taken as parallel) crosses a solid body (boxes, spheres, capsules) deep enough
+    to hide it. Planes are translucent and point masses not solid: they hide nothing."""
+    hidden = np.zeros(len(points), dtype=bool)
+    for index, geom in enumerate(geometries):
+        if geom.solid is None or not len(points):
+            continue
+        if geom.solid[0] == "box":
+            half = geom.solid[1]
+            chord = _box_chord(points, toward_eye, origin[index], rotation[index], half)
+            size = float(np.min(half))
+        else:
+            _, radius, half_length = geom.solid
+            chord = _round_chord(points, toward_eye, origin[index], rotation[index], radius,
+                                 half_length, reach)
+            size = radius
+        hidden |= chord > _HIDDEN_CHORD * size
+    return hidden
+
+
+def _toward_eye(ax) -> np.ndarray:
+    """Unit world direction from the scene toward the 3D camera. With the box aspect
+    set to the axis spans (as here) the view scales every axis alike, so this is the
+    line of sight in world coordinates too (exact at the view centre in perspective)."""
+    elev, azim = np.radians(ax.elev), np.radians(ax.azim)
+    return np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+
+
 class _Painter:
     """Owns the artists of one scene on one Axes and moves them to any frame."""
 
@@ -685,11 +787,8 @@ class _Painter:
 
     def _depth_order(self, com: np.ndarray):
         """3D: paint far bodies first, and planes first when seen from their open side."""
-        elev, azim = np.radians(self.ax.elev), np.radians(self.ax.azim)
-        toward_eye = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim),
-                               np.sin(elev)])
-        scaled = (com - self.low) / (self.high - self.low)  # depth as the box aspect shows it
-        rank = np.argsort(np.argsort(scaled @ toward_eye))
+        toward_eye = _toward_eye(self.ax)
+        rank = np.argsort(np.argsort(com @ toward_eye))
         for index, update in enumerate(self.updaters):
             for artist in getattr(update, "artists", ()):
                 artist.set_zorder(2.0 + rank[index] / (len(rank) + 1.0))
@@ -698,6 +797,9 @@ class _Painter:
             artist.set_zorder(1.0 if above else 4.0)
 
     def _draw_contacts(self, frame: int):
+        """Draw frame ``frame``'s active contacts. In 3D those whose line of sight to the
+        camera crosses a solid body are drawn apart, faint and under every body (mplot3d
+        orders whole artists, not points), so the body covers them."""
         for artist in self.contact_artists:
             artist.remove()
         self.contact_artists = []
@@ -705,25 +807,40 @@ class _Painter:
             return
         active, point, normal, status = (part[frame] for part in self.frames.contacts)
         point, normal, status = point[active], normal[active], status[active]
-        colors = [STATUS_COLORS.get(int(code), "k") for code in status]
+        if self.dim == 2:
+            self._contact_group(point, normal, status, "", 5.0, 1.0)
+            return
+        hidden = _hidden_points(point, _toward_eye(self.ax), self.geometries,
+                                self.frames.origin[frame], self.frames.rotation[frame],
+                                reach=2.0 * float(np.linalg.norm(self.high - self.low)))
+        self._contact_group(point[~hidden], normal[~hidden], status[~hidden], "", 5.0, 1.0)
+        self._contact_group(point[hidden], normal[hidden], status[hidden], "_hidden",
+                            _HIDDEN_ZORDER, _HIDDEN_ALPHA)
+
+    def _contact_group(self, point, normal, status, suffix, zorder, alpha):
+        """Dots (gid ``jaxrb.contact_points<suffix>``) and normal arrows (gid
+        ``jaxrb.contact_normals<suffix>``) of some contacts, as two artists."""
+        from matplotlib.colors import to_rgba
+        colors = [to_rgba(STATUS_COLORS.get(int(code), "k"), alpha) for code in status]
         segments = _arrow_segments(point, normal, self.arrow_length)
         segment_colors = [c for c in colors for _ in range(3)]
         if self.dim == 2:
             from matplotlib.collections import LineCollection
-            dots = self.ax.scatter(point[:, 0], point[:, 1], s=14, c=colors or None, zorder=5,
-                                   gid="jaxrb.contact_points")
+            dots = self.ax.scatter(point[:, 0], point[:, 1], s=14, c=colors or None,
+                                   zorder=zorder, gid=f"jaxrb.contact_points{suffix}")
             arrows = LineCollection(segments, colors=segment_colors or None, linewidths=1.2,
-                                    zorder=5, gid="jaxrb.contact_normals")
+                                    zorder=zorder, gid=f"jaxrb.contact_normals{suffix}")
             self.ax.add_collection(arrows, autolim=False)
         else:
             from mpl_toolkits.mplot3d.art3d import Line3DCollection
             dots = self.ax.scatter(point[:, 0], point[:, 1], point[:, 2], s=14, c=colors or None,
-                                   depthshade=False, zorder=5, gid="jaxrb.contact_points")
+                                   depthshade=False, zorder=zorder,
+                                   gid=f"jaxrb.contact_points{suffix}")
             arrows = Line3DCollection(segments, colors=segment_colors or None, linewidths=1.2,
-                                      zorder=5, gid="jaxrb.contact_normals")
+                                      zorder=zorder, gid=f"jaxrb.contact_normals{suffix}")
             self.ax.add_collection3d(arrows, autolim=False)
         arrows.jaxrb_segments = segments
-        self.contact_artists = [dots, arrows]
+        self.contact_artists += [dots, arrows]
 
     def set_frame(self, frame: int):
         """Move every artist to frame ``frame``; returns the artists (for FuncAnimation)."""

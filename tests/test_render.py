@@ -357,18 +357,26 @@ def test_two_tilted_half_planes_show_a_v_not_an_x():
 # Contacts
 
 
+def contact_groups(ax):
+    """[(dots, arrows)]: the visible contacts, then in 3D those hidden behind bodies."""
+    suffixes = ("", "_hidden") if ax.name == "3d" else ("",)
+    return [(artists_with_gid(ax, f"jaxrb.contact_points{suffix}")[0],
+             artists_with_gid(ax, f"jaxrb.contact_normals{suffix}")[0]) for suffix in suffixes]
+
+
 def check_contact_artists(ax, found):
     active = np.asarray(found.active)
     count = int(active.sum())
     assert count > 0
-    (dots,) = artists_with_gid(ax, "jaxrb.contact_points")
-    (arrows,) = artists_with_gid(ax, "jaxrb.contact_normals")
-    assert len(dots.get_offsets()) == count
-    assert arrows.jaxrb_segments.shape[:2] == (3 * count, 2)
     render.figure_pixels(ax.figure)  # mplot3d fixes scatter colours (depth-sorted) when drawn
-    expected = [to_rgba(render.STATUS_COLORS[int(s)]) for s in np.asarray(found.status)[active]]
-    drawn = sorted(map(tuple, np.round(dots.get_facecolors(), 6)))
-    assert np.allclose(drawn, sorted(map(tuple, np.round(expected, 6))))
+    groups = contact_groups(ax)
+    for dots, arrows in groups:
+        assert arrows.jaxrb_segments.shape[:2] == (3 * len(dots.get_offsets()), 2)
+    assert sum(len(dots.get_offsets()) for dots, _ in groups) == count
+    expected = [to_rgba(render.STATUS_COLORS[int(s)])[:3]
+                for s in np.asarray(found.status)[active]]
+    drawn = [tuple(c[:3]) for dots, _ in groups for c in np.round(dots.get_facecolors(), 6)]
+    assert np.allclose(sorted(drawn), sorted(map(tuple, np.round(expected, 6))))
     return count
 
 
@@ -388,6 +396,38 @@ def test_contacts_3d(box_drop):
     plain = render.draw(model, params, state)  # a new pyplot 3D figure
     assert plain.name == "3d"
     assert not [a for a in plain.get_children() if str(a.get_gid()).startswith("jaxrb.contact")]
+
+
+def test_contacts_behind_a_box_are_covered_by_it_3d(box_drop):
+    # Issue 61: every contact was drawn over the bodies, so the corner behind the box
+    # showed through it. Seen from above (elevation 22, azimuth -60) the far bottom
+    # corner (-0.1, 0.1, 0) is behind the box; from below, the whole bottom face shows.
+    model, params, state = box_drop
+    ax = render.draw(model, params, state, ax=new_axes(3), extent=EXTENT_3D, contacts=True)
+    (seen, seen_arrows), (hidden, hidden_arrows) = contact_groups(ax)
+    box = artists_with_gid(ax, "jaxrb.body0")[0]
+    hidden_points = hidden_arrows.jaxrb_segments[0::3, 0]
+    assert np.allclose(hidden_points, [[-0.1, 0.1, 0.0]], atol=1e-3), hidden_points
+    assert len(seen.get_offsets()) == 3
+    assert seen.get_zorder() > box.get_zorder() > hidden.get_zorder()
+    assert seen_arrows.get_zorder() > box.get_zorder() > hidden_arrows.get_zorder()
+    render.figure_pixels(ax.figure)
+    assert np.allclose(seen.get_facecolors()[:, 3], 1.0)
+    assert np.allclose(hidden.get_facecolors()[:, 3], 0.3)
+    # In the picture the box covers the hidden contact (dot and arrow, which points up
+    # into the box): hiding it changes no pixel. The visible ones show.
+    with_contacts = render.figure_pixels(ax.figure)
+    assert (hide_and_render(ax, "jaxrb.contact_points_hidden") == with_contacts).all()
+    assert (hide_and_render(ax, "jaxrb.contact_normals_hidden") == with_contacts).all()
+    row, column = pixel_of(ax, (0.1, -0.1, 0.0))  # the near corner
+    without_seen = hide_and_render(ax, "jaxrb.contact_points")
+    assert (without_seen[row - 2:row + 3, column - 2:column + 3]
+            != with_contacts[row - 2:row + 3, column - 2:column + 3]).any()
+
+    below = render.draw(model, params, state, ax=new_axes(3), extent=EXTENT_3D, contacts=True,
+                        view=(-30.0, -60.0))
+    (seen, _), (hidden, _) = contact_groups(below)
+    assert len(seen.get_offsets()) == 4 and len(hidden.get_offsets()) == 0
 
 
 def test_contacts_2d(planar):
