@@ -5,6 +5,8 @@ Trajectories are stacked by hand (no rollout to compile), so the only compiled c
 is contact detection for the two contact scenes.
 """
 
+import gc
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -511,6 +513,90 @@ def test_animation_with_contacts_2d(planar, tmp_path):
     assert counts[1] == int(detect(model, params, state).active.sum()) > 0
     with Image.open(render.save_animation(anim, tmp_path / "planar.gif")) as image:
         assert image.n_frames == 2
+
+
+@pytest.fixture(scope="module")
+def sliding_box():
+    """A 2D box sliding along x at 1 m/s, 60 states per second, with its initial state."""
+    scene = rb.Scene(dim=2)
+    scene.add_body(rb.Box((0.1, 0.1)), mass=1.0, pos=(0.0, 0.5), vel=(1.0, 0.0))
+    model, params, state = scene.build(dt=1 / 60, contact="none")
+
+    def run(seconds):
+        steps = int(round(seconds * 60))
+        # As rb.rollout makes them: the states after each step, time summed in float32.
+        times = np.cumsum(np.full(steps, np.float32(1 / 60)), dtype=np.float32)
+        traj = stack([state.replace(pos=state.pos.at[0, 0].add(t), time=jnp.asarray(t))
+                      for t in times])
+        return traj
+    return model, params, state, run
+
+
+def playback(anim):
+    """(frames, seconds each) of an animation, as a player shows it."""
+    return len(list(anim.new_frame_seq())), 1.0 / anim.jaxrb_fps
+
+
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")
+def test_animation_plays_in_real_time_from_the_initial_state(sliding_box):
+    # Issue 61: animate played 30 frames per second whatever dt was (a 3 s run at 60 Hz
+    # played for 6 s) and could not show the state the rollout started from.
+    model, params, state, run = sliding_box
+    traj = run(3.0)
+    anim = render.animate(model, params, traj, initial=state, figsize=(2, 2), dpi=40)
+    frames, seconds = playback(anim)
+    assert abs(frames * seconds - 3.0) <= seconds  # within one frame of 3 s
+    assert seconds == pytest.approx(1 / 30)  # 60 Hz over the 30 fps cap: every second state
+    painter = anim.jaxrb_painter
+    assert np.allclose(painter.frames.time, np.arange(frames) * 2 / 60)
+    assert np.isclose(painter.frames.time[-1], 3.0)
+    # Frame 0 is the initial state: the box at x = 0, t = 0.
+    painter.set_frame(0)
+    (patch,) = artists_with_gid(painter.ax, "jaxrb.body0")
+    assert np.allclose(patch.get_xy()[:4].mean(axis=0), [0.0, 0.5])
+    assert painter.ax.get_title() == "t = 0.000 s"
+    # Without it, frame 0 is the first state after a step; still 3 s.
+    anim = render.animate(model, params, traj, figsize=(2, 2), dpi=40)
+    frames, seconds = playback(anim)
+    assert abs(frames * seconds - 3.0) <= seconds
+    assert anim.jaxrb_painter.frames.time[0] == pytest.approx(1 / 60)
+    # speed scales time; every thins the states (each frame then lasts longer); fps fixes
+    # the rate (the old behaviour, now asked for by name).
+    frames, seconds = playback(render.animate(model, params, traj, initial=state, speed=0.5,
+                                              figsize=(2, 2), dpi=40))
+    assert abs(frames * seconds - 6.0) <= seconds and seconds == pytest.approx(1 / 30)
+    frames, seconds = playback(render.animate(model, params, traj, initial=state, every=6,
+                                              figsize=(2, 2), dpi=40))
+    assert (frames, seconds) == (31, pytest.approx(0.1))
+    frames, seconds = playback(render.animate(model, params, traj, fps=30, figsize=(2, 2),
+                                              dpi=40))
+    assert (frames, seconds) == (180, pytest.approx(1 / 30))
+    with pytest.raises(ValueError, match="'fps'.*'speed'"):
+        render.animate(model, params, traj, fps=30, speed=2.0)
+    with pytest.raises(ValueError, match="'initial'.*before"):
+        render.animate(model, params, traj, initial=state.replace(time=jnp.asarray(1.0)))
+    with pytest.raises(ValueError, match="'speed'"):
+        render.animate(model, params, traj, speed=0.0)
+    del anim, painter, patch
+    gc.collect()  # the unplayed animations go here, under this test's warning filter
+
+
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")
+def test_saved_gif_keeps_real_time(sliding_box, tmp_path):
+    # A GIF keeps frame durations in 1/100 s: 33 ms frames stored as 30 ms ran 10 % fast.
+    model, params, state, run = sliding_box
+    anim = render.animate(model, params, run(0.5), initial=state, figsize=(1.5, 1.5), dpi=30)
+    frames, seconds = playback(anim)
+    assert frames == 16
+    with Image.open(render.save_animation(anim, tmp_path / "slide.gif")) as image:
+        durations = []
+        for index in range(image.n_frames):
+            image.seek(index)
+            durations.append(image.info["duration"])
+    assert len(durations) == frames and set(durations) <= {30, 40}
+    assert abs(sum(durations) - 1000 * frames * seconds) <= 10
+    del anim
+    gc.collect()
 
 
 # --------------------------------------------------------------------------------------
