@@ -3,19 +3,22 @@
 Everything here runs headless: nothing calls ``plt.show`` or changes the
 backend. Matplotlib is imported on first use, so ``import jaxrb`` stays fast.
 
-Pictures of a scene:
+Pictures of a scene (what each returns: :func:`draw` and the plots an Axes,
+whose Figure is ``ax.figure``; :func:`animate` a FuncAnimation, whose Figure is
+``anim.jaxrb_painter.ax.figure``; :func:`save_animation` the path written):
 
 * :func:`draw` ``(model, params, state, ax=None, *, contacts=False, ...) -> Axes``
-  draws one world. 2D: boxes and polygons as polygons, circles with a radius
-  line that shows their rotation, point masses as dots (size by mass) with
-  spokes to the centre of mass, half-planes as their solid side shaded
-  across the view under the stretch of their line that borders free space
-  (two tilted planes meeting in a V show a V-shaped valley). 3D: boxes,
-  spheres and capsules as shaded meshes (spheres and capsules striped so spin
-  shows), point masses as dots, planes as translucent patches clipped to the
-  view and to the free side of the other planes. ``contacts=True`` adds the active
-  contacts of :func:`jaxrb.detect_contacts`: a dot and a short normal arrow
-  each, red when colliding, green when resting, orange when separating
+  draws one world (``rb.render.draw(...).figure.savefig("a.png")`` saves it).
+  2D: boxes and polygons as polygons, circles with a radius line that shows
+  their rotation, point masses as dots (size by mass) with spokes to the
+  centre of mass, half-planes as their solid side shaded across the view
+  under the stretch of their line that borders free space (two tilted planes
+  meeting in a V show a V-shaped valley). 3D: boxes, spheres and capsules as
+  shaded meshes (spheres and capsules striped so spin shows), point masses as
+  dots, planes as translucent patches clipped to the view and to the free side
+  of the other planes. ``contacts=True`` adds the active contacts of
+  :func:`jaxrb.detect_contacts`: a dot and a short normal arrow each, red when
+  colliding, green when resting, orange when separating
   (:data:`STATUS_COLORS`). Bodies take :data:`BODY_COLORS` (blues, purples,
   greys) unless ``colors`` is given, so no body reads as a contact status.
 * :func:`animate` ``(model, params, traj, *, initial=None, every=1, speed=1.0,
@@ -24,8 +27,8 @@ Pictures of a scene:
   given) in real time, times ``speed``: frames last the simulated time between
   them, and states are skipped rather than time slowed to stay under
   ``max_fps`` (``fps=`` fixes the frame rate instead). Axis limits stay fixed
-  over the whole run and the time is in the title. Poses (and contacts) of all frames
-  are computed once up front; each frame only moves existing artists.
+  over the whole run and the time is in the title. Poses (and contacts) of all
+  frames are computed once up front; each frame only moves existing artists.
 * :func:`save_animation` writes ``.gif`` (Pillow), ``.mp4`` (ffmpeg) or
   ``.html``; :func:`to_html` gives the HTML/JS player for notebooks:
   ``IPython.display.HTML(rb.render.to_html(anim))``.
@@ -922,7 +925,12 @@ def _painter(model: Model, params: Params, states: State, ax, caller: str, *, co
 def draw(model: Model, params: Params, state: State, ax=None, *, contacts: bool = False,
          colors=None, extent=None, title: Optional[str] = None, show_time: bool = False,
          view=None, figsize=None):
-    """Draw one world's state with matplotlib.
+    """Draw one world's state with matplotlib; returns the Axes, not a Figure.
+
+    Example::
+
+        ax = rb.render.draw(model, params, state, contacts=True)
+        ax.figure.savefig("state.png")  # the Figure is ax.figure
 
     Args:
         model: the scene's Model (shapes and planes come from it).
@@ -951,7 +959,8 @@ def draw(model: Model, params: Params, state: State, ax=None, *, contacts: bool 
         figsize: figure size in inches when a new figure is made.
 
     Returns:
-        The Axes drawn into.
+        The :class:`matplotlib.axes.Axes` drawn into (``ax`` when given; a 3D
+        Axes for a 3D model), not a Figure: its Figure is ``ax.figure``.
 
     Raises:
         ValueError: a batched state, mismatched params, a bad ``extent``,
@@ -1008,7 +1017,9 @@ def animate(model: Model, params: Params, traj: State, *, initial: Optional[Stat
             every: int = 1, speed: float = 1.0, max_fps: float = 30.0, fps: Optional[float] = None,
             contacts: bool = False, figsize=None, extent=None, title: Optional[str] = None,
             colors=None, view=None, dpi=None, ax=None):
-    """Animate a trajectory in real time; the axis limits stay fixed over the whole run.
+    """Animate a trajectory in real time; returns a FuncAnimation, not a Figure or a file.
+
+    The axis limits stay fixed over the whole run.
 
     Playback runs at the simulated pace: each shown frame lasts the simulated
     time between shown states (the median spacing of their ``time``) divided
@@ -1252,7 +1263,8 @@ def plot_energy(model: Model, params: Params, traj: State, ax=None):
         ax: 2D Axes to plot into; default a new pyplot figure.
 
     Returns:
-        The Axes, with lines labelled "kinetic", "potential" and "total" (in J).
+        The Axes (its Figure is ``ax.figure``), with lines labelled "kinetic",
+        "potential" and "total" (in J).
     """
     caller = "plot_energy"
     _check_state(model, traj, caller, time_axis=True)
@@ -1283,7 +1295,8 @@ def plot_angular_momentum(model: Model, params: Params, traj: State, ax=None):
         ax: 2D Axes to plot into; default a new pyplot figure.
 
     Returns:
-        The Axes, lines labelled "L_x", "L_y", "L_z", "|L|" (3D) or "L_z" (2D).
+        The Axes (its Figure is ``ax.figure``), lines labelled "L_x", "L_y",
+        "L_z", "|L|" (3D) or "L_z" (2D).
     """
     caller = "plot_angular_momentum"
     _check_state(model, traj, caller, time_axis=True)
@@ -1318,7 +1331,7 @@ def plot_series(times, values, *, labels: Optional[Sequence[str]] = None, ax=Non
         ylabel: y-axis label.
 
     Returns:
-        The Axes.
+        The Axes (its Figure is ``ax.figure``).
 
     Raises:
         ValueError: ``times`` not one-dimensional, ``values`` of another

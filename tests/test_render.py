@@ -599,6 +599,27 @@ def test_saved_gif_keeps_real_time(sliding_box, tmp_path):
     gc.collect()
 
 
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")
+def test_draw_and_animate_say_what_they_return(box_drop):
+    # Issue 61: a new user took draw's result for a Figure (savefig failed on an Axes).
+    model, params, state = box_drop
+    ax = render.draw(model, params, state)
+    assert isinstance(ax, matplotlib.axes.Axes) and isinstance(ax.figure, matplotlib.figure.Figure)
+    returns = render.draw.__doc__.split("Returns:")[1]
+    assert "Axes" in returns and "not a Figure" in returns and "ax.figure" in returns
+    for plot in (render.plot_energy, render.plot_angular_momentum, render.plot_series):
+        assert "ax.figure" in plot.__doc__.split("Returns:")[1], plot.__name__
+    anim = render.animate(model, params, stack([state, state.replace(time=jnp.asarray(0.1))]))
+    assert isinstance(anim, mpl_animation.FuncAnimation)
+    assert isinstance(anim.jaxrb_painter.ax.figure, Figure)
+    returns = render.animate.__doc__.split("Returns:")[1]
+    assert "FuncAnimation" in returns and "anim.jaxrb_painter.ax.figure" in returns
+    assert "path" in render.save_animation.__doc__.split("Returns:")[1]
+    anim.jaxrb_painter.set_frame(0)
+    del anim
+    gc.collect()
+
+
 # --------------------------------------------------------------------------------------
 # Bad input
 
