@@ -109,6 +109,6 @@ pos = np.stack([np.asarray(simulated.pos[k, :count, 0]) * replay.length_scale,
 quat = np.stack([np.asarray(simulated.quat[k, :count, 0]), validation.quat[k, :count, 0]], axis=1)
 frames = rb.State(pos=pos, quat=quat, vel=np.zeros_like(pos), angvel=np.zeros_like(pos), angle=None,
                   time=np.arange(count) * validation.sample_dt)
-animation = rb.render.animate(pair_model, pair_params, frames, every=2, fps=37,  # half speed
-                              title="simulated (blue), real (orange), half speed;")
+animation = rb.render.animate(pair_model, pair_params, frames, every=2, speed=0.5,
+                              title="simulated (blue), real (purple), half speed;")
 rb.render.save_animation(animation, os.path.join(OUT, "cube_tosses.gif"))

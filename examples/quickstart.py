@@ -41,7 +41,7 @@ traj = simulate(state, params)
 print(f"box centre after 2 s: z = {float(traj.pos[-1, 0, 2]):.4f} m (resting face-down: 0.1 m)")
 
 # %%
-anim = rb.render.animate(model, params, traj, every=2, contacts=True, title="box drop")
+anim = rb.render.animate(model, params, traj, initial=state, every=2, contacts=True, title="box drop")
 rb.render.save_animation(anim, OUT / "quickstart_box.gif")
 anim
 
@@ -70,6 +70,6 @@ rb.render.draw(model2, params2, jax.tree_util.tree_map(lambda a: a[-1], traj2), 
 fig.savefig(OUT / "quickstart_pyramid.png", dpi=100)
 
 # %%
-anim2 = rb.render.animate(model2, params2, traj2, every=6, title="pyramid")
+anim2 = rb.render.animate(model2, params2, traj2, initial=state2, every=6, title="pyramid")
 rb.render.save_animation(anim2, OUT / "quickstart_pyramid.gif")
 anim2

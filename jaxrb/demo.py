@@ -135,8 +135,9 @@ def box_drop_report(out_dir: pathlib.Path, seconds: float = 2.0) -> str:
     figure = rb.render.draw(model, params, jax.tree_util.tree_map(lambda a: a[-1], traj),
                             contacts=True, title=f"box at rest after {seconds:g} s").figure
     figure.savefig(out_dir / "box_drop.png", dpi=100)
-    rb.render.save_animation(rb.render.animate(model, params, traj, every=2, contacts=True,
-                                               title="box drop"), out_dir / "box_drop.gif")
+    rb.render.save_animation(rb.render.animate(model, params, traj, initial=state, every=2,
+                                               contacts=True, title="box drop"),
+                             out_dir / "box_drop.gif")
     height = float(traj.pos[-1, 0, 2])
     return "\n".join([
         f"Box drop (impulse contact, h = 1/60 s × 4 substeps, {seconds:g} s simulated, "

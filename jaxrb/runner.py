@@ -91,7 +91,9 @@ def run_scene_file(path, num_steps: int, out_dir, *, every: int = 1, animation: 
         out_dir: output folder, created if needed.
         every: keep every ``every``-th state in the trajectory.
         animation: one of ``"gif"``, ``"mp4"`` (needs ffmpeg), ``"html"``, ``"none"``.
-        frames: at most this many animation frames (states are skipped evenly).
+        frames: at most this many animation frames (states are skipped evenly);
+            it plays in real time, at up to 50 frames per second (the most a
+            GIF shows at full pace).
         progress: called with progress lines (None: silent).
 
     Returns:
@@ -123,8 +125,9 @@ def run_scene_file(path, num_steps: int, out_dir, *, every: int = 1, animation: 
     written = ["trajectory.npz", "report.txt"]
     if animation != "none":
         stride = max(1, math.ceil(len(traj.time) / frames))
+        # ``frames`` already bounds the work; 50 fps is the fastest a GIF plays in a browser.
         movie = render.animate(model, params, jax.tree_util.tree_map(lambda a: a[::stride], traj),
-                               title=pathlib.Path(path).name)
+                               title=pathlib.Path(path).name, max_fps=50)
         render.save_animation(movie, out_dir / f"animation.{animation}")
         written.append(f"animation.{animation}")
     lines.append("wrote " + ", ".join(str(out_dir / name) for name in written))
