@@ -1,5 +1,8 @@
 """Narrowphase kernels of 3D boxes: box-box, box-sphere, box-capsule, points-box.
 
+(Past 600 lines on purpose: the four kernels share the box's signed distance,
+the clipping and the slot tables; split apart, each would import the others'.)
+
 Every kernel follows :mod:`jaxrb.collision.contacts`: one pair in, ``Contacts``
 with a fixed number of slots out, normal from B to A, ``dist`` the signed
 separation along the normal, ``point`` midway between the surfaces, finite
