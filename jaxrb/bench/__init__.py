@@ -1,7 +1,10 @@
 """Benchmarks: speed against error, and throughput (``python -m jaxrb.bench``).
 
 * :mod:`jaxrb.bench.speed_error`: error against the closed form against cost
-  for every configuration (:mod:`jaxrb.bench.pareto` draws the front).
+  for every configuration (:mod:`jaxrb.bench.pareto` draws the front); a
+  package: ``scenes`` (scenes, closed forms, error measures), ``grid`` (the
+  configurations), ``measure`` (running and timing them) and ``section`` (the
+  tables, plots and the section).
 * :mod:`jaxrb.bench.hard_cases`: stability cases, pass or fail.
 * :mod:`jaxrb.bench.timing`: compile time apart from median run time of
   jitted functions (block_until_ready), shared by every benchmark.
