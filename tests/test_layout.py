@@ -93,7 +93,7 @@ def circles(graph: dict) -> list:
 
 def test_the_import_graph_of_jaxrb_has_no_circles():
     graph = import_graph(modules_of("jaxrb"))
-    assert "jaxrb.bench.contact" in graph["jaxrb.bench.hard_cases"]  # the walk sees imports
+    assert "jaxrb.bench.contact" in graph["jaxrb.bench.hard_cases.stacks"]  # the walk sees imports
     assert "jaxrb.free_body_adjoint" in graph["jaxrb.plane_penalty_adjoint"]  # from jaxrb import x as ...
     found = [sorted(circle) for circle in circles(graph)]
     assert not found, f"modules that import each other, directly or around a circle: {found}"

@@ -1,8 +1,14 @@
 """Benchmarks: speed against error, and throughput (``python -m jaxrb.bench``).
 
 * :mod:`jaxrb.bench.speed_error`: error against the closed form against cost
-  for every configuration (:mod:`jaxrb.bench.pareto` draws the front).
-* :mod:`jaxrb.bench.hard_cases`: stability cases, pass or fail.
+  for every configuration (:mod:`jaxrb.bench.pareto` draws the front); a
+  package: ``scenes`` (scenes, closed forms, error measures), ``grid`` (the
+  configurations), ``measure`` (running and timing them) and ``section`` (the
+  tables, plots and the section).
+* :mod:`jaxrb.bench.hard_cases`: stability cases, pass or fail; a package:
+  ``common`` (constants, settings, the result), ``chunks`` (compiled rollouts
+  in chunks), ``stacks``, ``impacts`` and ``spinning`` (the cases) and
+  ``section`` (the table and the section).
 * :mod:`jaxrb.bench.timing`: compile time apart from median run time of
   jitted functions (block_until_ready), shared by every benchmark.
 * :mod:`jaxrb.bench.report`: Markdown tables, number formats, machine header.
