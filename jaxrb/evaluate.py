@@ -31,9 +31,9 @@ from jaxrb.compile import jit
 from jaxrb.initial_state import (CLEARANCE, quat_exp, quat_multiply, estimate_initial_states, free_flight_residuals, free_samples,
                                  initial_states, length_scale)
 from jaxrb.measured import Trajectories
+from jaxrb.observations import quaternion_angle
 from jaxrb.shapes import Box, Capsule, Sphere
 from jaxrb.step import make_step, rollout
-from jaxrb.sysid import quaternion_angle
 from jaxrb.types import Model, Params, State
 
 

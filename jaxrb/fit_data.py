@@ -36,9 +36,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from jaxrb import evaluate, least_squares, shooting, sysid
+from jaxrb import evaluate, least_squares, shooting
 from jaxrb.evaluate import body_sizes, calibrated
 from jaxrb.measured import Trajectories
+from jaxrb.parameter_transforms import DEFAULT_TRANSFORMS, from_unconstrained, to_unconstrained
 from jaxrb.scenefile import SceneFile, load_scene, scene_to_dict
 from jaxrb.step import make_step
 from jaxrb.types import Model, Params, State
@@ -233,8 +234,8 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         trajectories: K measured trajectories of the scene's bodies.
         fields: Params field names to fit (:data:`FITTABLE`). A restitution
             that starts at 0 or 1 is fitted on the closed interval (the
-            ``"clip"`` transform of :mod:`jaxrb.sysid`), others with the
-            module's default transforms.
+            ``"clip"`` transform of :mod:`jaxrb.parameter_transforms`),
+            others with that module's default transforms.
         horizons: samples predicted from each measured start, one LM stage each.
         stride: samples between starts.
         starts: candidate starting points (the given one and ``starts − 1``
@@ -270,13 +271,13 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
     say(f"{trajectories.num_trajectories} trajectories; tracker length scale {scale:.4f} (from free flight)")
     # A coefficient in [0, 1] that starts at a bound (restitution 0, the default) is fitted on the
     # closed interval: the sigmoid cannot start there.
-    transforms = {name: "clip" for name in fields if sysid.DEFAULT_TRANSFORMS.get(name) == "sigmoid"
+    transforms = {name: "clip" for name in fields if DEFAULT_TRANSFORMS.get(name) == "sigmoid"
                   and np.any((np.asarray(getattr(params, name)) <= 0) | (np.asarray(getattr(params, name)) >= 1))}
-    theta0, unravel = ravel_pytree(sysid.to_unconstrained(params, fields, transforms))
+    theta0, unravel = ravel_pytree(to_unconstrained(params, fields, transforms))
     dtype = theta0.dtype
 
     def to_params(theta):
-        return sysid.from_unconstrained(unravel(jnp.asarray(theta, dtype)), params, fields, transforms)
+        return from_unconstrained(unravel(jnp.asarray(theta, dtype)), params, fields, transforms)
 
     def describe(theta):
         fitted = to_params(theta)

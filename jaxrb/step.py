@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jaxrb import adjoint as hand_written
 from jaxrb.collision.pairs import detect
 from jaxrb.compile import full_precision
-from jaxrb.contact import impulse, toi
+from jaxrb.contact import impulse, rows, toi
 from jaxrb.contact.common import carried_impulses, pad
 from jaxrb.contact.penalty import penalty_wrench
 from jaxrb.dynamics import net_wrench, with_inverse_inertia
@@ -138,19 +138,19 @@ def _impulse_substeps(model: Model):
 
     def run(state, params, force, torque, h):
         contacts = detect(model, params, state)
-        prep = impulse.prepare(model, params, state, contacts)
-        # The warm start, along each row's directions (impulse.row_impulses).
-        lam = impulse.row_impulses(prep, carried_impulses(state, contacts))
+        prep = rows.prepare(model, params, state, contacts)
+        # The warm start, along each row's directions (rows.row_impulses).
+        lam = rows.row_impulses(prep, carried_impulses(state, contacts))
         soft = impulse.soft_parameters(params, h)
 
         def warm_start(state, lam):
-            vel, angvel = impulse.push_rows(model, prep, pad(state.vel), pad(state.angvel), list(lam))
+            vel, angvel = rows.push_rows(model, prep, pad(state.vel), pad(state.angvel), list(lam))
             return _unpad(state, vel, angvel)
 
         def solve(state, lam, prep, soft, passes):
             if passes == 0:
                 return state, lam
-            separation = impulse.current_separation(model, prep, state)
+            separation = rows.current_separation(model, prep, state)
             # A fori_loop, not a Python loop: the pass is compiled once, which
             # keeps compile time (and the reverse-mode program) small.
             one_pass = lambda _, carry: impulse.solve_pass(model, prep, *carry, separation, h, soft)
@@ -159,7 +159,7 @@ def _impulse_substeps(model: Model):
                 # pass, not a stack per intermediate written in the forward loop
                 # and read back: the bouncing box's gradient took 0.84-0.99x the
                 # time (docs/design.md, 'Reverse mode'). The sequential passes
-                # are rematerialised row by row instead (impulse._sweep_rows).
+                # are rematerialised row by row instead (contact.sequential._sweep_rows).
                 one_pass = jax.checkpoint(one_pass, prevent_cse=False)
             vel, angvel, lam = jax.lax.fori_loop(0, passes, one_pass, (pad(state.vel), pad(state.angvel), lam))
             return _unpad(state, vel, angvel), lam
@@ -167,15 +167,15 @@ def _impulse_substeps(model: Model):
         def substep(_, carry):
             state, lam = carry
             if len(impact_rows):
-                start_speed = impulse.normal_velocity(model, prep, state)
+                start_speed = rows.normal_velocity(model, prep, state)
             state = velocity_phase(model, params, state, force, torque, h)
             # Restitution uses the approach speed including this substep's loads
             # (gravity): the speed the contact is actually hit with.
-            prep_now = prep.replace(approach=impulse.normal_velocity(model, prep, state))
+            prep_now = prep.replace(approach=rows.normal_velocity(model, prep, state))
             if len(impact_rows):
                 # Fast approaches of the time-of-impact rows are theirs alone: the
                 # solver would otherwise stop them speculatively a substep early.
-                separation = impulse.current_separation(model, prep_now, state)
+                separation = rows.current_separation(model, prep_now, state)
                 owned = toi.owned_rows(prep_now, separation, params.bounce_threshold, impact_rows)
                 vel, angvel, shift, turn = toi.resolve_impacts(
                     model, prep_now, pad(state.vel), pad(state.angvel), separation, owned, start_speed, h,
@@ -197,7 +197,7 @@ def _impulse_substeps(model: Model):
             return _unpad(state, vel, angvel), lam
 
         state, lam = jax.lax.fori_loop(0, model.substeps, substep, (state, lam))
-        return state.replace(contact_impulse=impulse.world_impulses(prep, lam), contact_key=contacts.key,
+        return state.replace(contact_impulse=rows.world_impulses(prep, lam), contact_key=contacts.key,
                              overflow=contacts.overflow)
 
     return run

@@ -508,7 +508,7 @@ def test_jacobi_row_couplings_match_the_split_sub_bodies():
     the 3x3 world inverse inertias, for a box resting on a plane and a
     tilted box resting on it (rows with a static side and rows with two bodies).
     """
-    from jaxrb.contact import common, impulse
+    from jaxrb.contact import common, rows
 
     scene = rb.Scene(dim=3)
     scene.add_plane(friction=0.5)
@@ -517,12 +517,12 @@ def test_jacobi_row_couplings_match_the_split_sub_bodies():
                    friction=0.5)
     model, params, state = scene.build(dt=1 / 60, contact=rb.Impulse(solver="jacobi"), dtype=jnp.float64)
     contacts = rb.detect_contacts(model, params, state)
-    prep = impulse.prepare(model, params, state, contacts)
+    prep = rows.prepare(model, params, state, contacts)
     active = np.asarray(contacts.active)
     body_a, body_b = np.asarray(contacts.body_a), np.asarray(contacts.body_b)
     assert np.any(active & (body_b == 2)) and np.any(active & (body_b == 1))  # both kinds of row
 
-    split = np.asarray(impulse._contact_counts(model, contacts))
+    split = np.asarray(rows._contact_counts(model, contacts))
     inv_mass = np.append(1.0 / np.asarray(params.mass), 0.0)
     inv_inertia = np.concatenate([np.asarray(common.world_inverse_inertia(model, params, state, padded=False)),
                                   np.zeros((1, 3, 3))])

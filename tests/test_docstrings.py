@@ -7,9 +7,10 @@ What is public (walked by :func:`public_symbols`, pure introspection, no tracing
 * every function and class without a leading underscore *defined* in one of
   the public modules ``jaxrb.quaternion``, ``jaxrb.math``, ``jaxrb.shapes``,
   ``jaxrb.dynamics``, ``jaxrb.integrators``, ``jaxrb.step``, ``jaxrb.types``,
-  ``jaxrb.scene``, ``jaxrb.sysid``, ``jaxrb.sweep``, and ``jaxrb.render``,
-  ``jaxrb.scenefile``, ``jaxrb.scenefile_common``, ``jaxrb.mjcf`` and
-  ``jaxrb.analytic`` when those exist (they are picked up automatically),
+  ``jaxrb.scene``, ``jaxrb.sysid`` (with ``jaxrb.observations`` and
+  ``jaxrb.parameter_transforms``, whose names it re-exports), ``jaxrb.sweep``,
+  and ``jaxrb.render``, ``jaxrb.scenefile``, ``jaxrb.scenefile_common``,
+  ``jaxrb.mjcf`` and ``jaxrb.analytic`` when those exist (they are picked up automatically),
   plus any module named in ``jaxrb.__all__``. Names a module merely imports
   (``jax``, ``numpy``, another jaxrb module's function) are checked where they
   are defined; only objects whose ``__module__`` is inside ``jaxrb`` count;
@@ -67,7 +68,7 @@ import pytest
 import jaxrb
 
 PUBLIC_MODULES = ("quaternion", "math", "shapes", "dynamics", "integrators", "step", "types",
-                  "scene", "sysid", "sweep")
+                  "scene", "sysid", "observations", "parameter_transforms", "sweep")
 # Covered as soon as they exist (written alongside this test).
 OPTIONAL_MODULES = ("render", "scenefile", "scenefile_common", "mjcf", "analytic")
 

@@ -281,7 +281,7 @@ def test_penalty_restitution_gradient_matches_finite_differences(dim):
 def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeypatch):
     """The solver skips an inactive row with lax.cond; its derivatives select instead.
 
-    ``impulse._guarded_row`` gives the row update a custom JVP (solve every row,
+    ``sequential._guarded_row`` gives the row update a custom JVP (solve every row,
     drop an inactive one's result). Its gradient must equal that of
     differentiating the cond itself. The scene has rows of both kinds: a 2D
     box falls 5 cm with a spin (speculative rows inactive) and lands at about
@@ -291,7 +291,7 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     than the default keeps the two compiles short; the sweeps share
     ``_sweep_rows``.)
     """
-    from jaxrb.contact import impulse
+    from jaxrb.contact import sequential
 
     scene = rb.Scene(dim=2, gravity=(0.0, -G))
     scene.add_plane(friction=0.5, restitution=0.3)
@@ -311,7 +311,7 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     def branching(solve_row, active, operands):
         return jax.lax.cond(active, lambda ops: solve_row(*ops), lambda ops: (ops[1], ops[2]), operands)
 
-    monkeypatch.setattr(impulse, "_guarded_row", branching)
+    monkeypatch.setattr(sequential, "_guarded_row", branching)
     reference = jax.jit(jax.grad(rollout_loss(model, params, state, 12)))(theta)
     for key in keys:
         np.testing.assert_allclose(guarded[key], reference[key], rtol=1e-9, atol=1e-12, err_msg=key)

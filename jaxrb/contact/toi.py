@@ -44,7 +44,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb import quaternion as quat_ops
-from jaxrb.contact.impulse import Prepared, _row_friction, _row_push, _row_speed, _sweep_rows
+from jaxrb.contact.impulse import _row_friction
+from jaxrb.contact.rows import Prepared
+from jaxrb.contact.sequential import _row_push, _row_speed, _sweep_rows
 from jaxrb.dynamics import inverse_inertia
 from jaxrb.integrators import angvel_from_momentum, body_angvel_and_momentum
 from jaxrb.types import Model, Params, State
@@ -115,7 +117,7 @@ def resolve_impacts(model: Model, prep: Prepared, vel, angvel, separation, owned
 
 
 def _impact(model, row, bodies, _, row_values, h):
-    """One row's impact (a :func:`jaxrb.contact.impulse._sweep_rows` update).
+    """One row's impact (a :func:`jaxrb.contact.sequential._sweep_rows` update).
 
     bodies: (v, ω, shift, turn) of body A, then of body B; row_values: the
     row's (separation, start_speed). Returns (bodies, None).
