@@ -40,7 +40,13 @@ def run_page(path):
     return namespace
 
 
-AFTER = {}
+def check_fitting(namespace, printed):
+    """The measured-motion fit (six tosses) ran to its table and its score, within its budget."""
+    assert "penalty_damping =" in printed and "over 6 trajectories" in printed
+    assert namespace["fit"].seconds < 240
+
+
+AFTER = {"fitting.md": check_fitting}
 
 
 def test_guide_holds_the_index_and_one_page_per_task():
@@ -49,6 +55,32 @@ def test_guide_holds_the_index_and_one_page_per_task():
     for page in TASK_PAGES:
         assert f"]({page})" in index, page
         assert python_blocks(GUIDE / page), f"{page} has no python block"
+
+
+def test_nothing_names_the_replaced_single_page_guide():
+    """The one-page guide became the folder docs/guide/; a link to the old page points nowhere."""
+    removed = "guide" + ".md"
+    assert not (ROOT / "docs" / removed).exists()
+    paths = [ROOT / "README.md", ROOT / "pyproject.toml"]
+    for folder, pattern in (("docs", "*.md"), ("jaxrb", "*.py"), ("tests", "*.py"), ("examples", "*.py"),
+                            ("notebooks", "*.py"), ("notebooks", "*.ipynb")):
+        paths += sorted((ROOT / folder).rglob(pattern))
+    named = [str(path.relative_to(ROOT)) for path in paths if removed in path.read_text(errors="replace")]
+    assert not named, named
+
+
+def test_constructor_table_states_what_first_users_guessed_wrong():
+    """Issue 61: Capsule's half_length was taken for the length, add_plane's solid side was unknown,
+    draw's result was taken for a Figure."""
+    index = (GUIDE / "README.md").read_text()
+    table = index.split("## Constructors on one screen")[1]
+    for name in ("rb.Scene(", "scene.add_body(", "scene.add_plane(", "rb.Sphere(", "rb.Box(", "rb.Capsule(",
+                 "rb.Circle(", "rb.Polygon(", "rb.PointMasses(", "scene.build(", "rb.Impulse(", "rb.Penalty(",
+                 "rb.make_step(", "rb.rollout(", "rb.render.draw(", "rb.render.animate("):
+        assert f"`{name}" in table, name
+    assert "The solid is `normal·x < offset`" in table
+    assert "half the segment" in table
+    assert "Returns the matplotlib Axes" in table and "FuncAnimation" in table
 
 
 @pytest.mark.parametrize("page", ("README.md",) + TASK_PAGES)
