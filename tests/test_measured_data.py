@@ -292,20 +292,6 @@ def test_shape_scale_gradient_of_the_penalty_adjoint_equals_autodiffs():
         assert float(jax.grad(loss)(1.2, True)) == pytest.approx(float(jax.grad(loss)(1.2, False)), rel=1e-9)
 
 
-def test_guide_fitting_snippet_runs(capsys, monkeypatch):
-    import pathlib
-    import re
-    root = pathlib.Path(__file__).resolve().parents[1]
-    section = (root / "docs" / "guide.md").read_text().split("## 7. Fitting measured motion")[1]
-    block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    monkeypatch.chdir(root)
-    namespace = {"SIZE": 6}
-    exec(compile(block, "docs/guide.md", "exec"), namespace)  # noqa: S102 - our own docs
-    printed = capsys.readouterr().out
-    assert "penalty_damping =" in printed and "over 6 trajectories" in printed
-    assert namespace["fit"].seconds < 240
-
-
 def test_bootstrap_errors_of_a_mean_match_the_standard_error():
     """Per-group losses ℓ_k = (θ - c_k)²: the minimiser of their mean is the mean of the c_k, whose
     standard error is std(c)/√G; a coordinate the losses do not depend on runs to the grid's edge."""
