@@ -388,21 +388,12 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, every:
             applied: Optional[Wrench]) -> State:
     """``rb.rollout(..., adjoint=True)`` for a free-body model: the same States, this module's reverse mode.
 
-    Args:
-        step: from :func:`jaxrb.make_step` of a model :func:`supports` accepts.
-        state: initial State.
-        params: Params with ``inv_inertia`` filled (``rb.rollout`` does it).
-        num_steps: steps, a multiple of ``every``.
-        every: keep every ``every``-th state.
-        applied: None or a Wrench with a leading axis (num_steps, ...).
-
-    Returns:
-        The stacked States (num_steps // every, ...), bit for bit
-        ``rb.rollout``'s. Reverse mode keeps every
-        step's input State (T States, as ``rb.rollout`` without segments;
-        with ``every=1`` these are the trajectory itself, which the backward
-        pass copies shifted by a step: :func:`backward_loop_inputs`). Forward
-        mode raises (``jax.custom_vjp``).
+    Args and the States returned as for :func:`jaxrb.adjoint.rollout`, which
+    calls this for a model :func:`supports` accepts; the States are bit for
+    bit ``rb.rollout``'s. Reverse mode keeps every step's input State (T
+    States, as ``rb.rollout`` without segments; with ``every=1`` these are
+    the trajectory itself, which the backward pass copies shifted by a step:
+    :func:`backward_loop_inputs`).
     """
     model = step.model
     num_saved = num_steps // every

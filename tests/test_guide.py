@@ -57,18 +57,6 @@ def test_guide_holds_the_index_and_one_page_per_task():
         assert python_blocks(GUIDE / page), f"{page} has no python block"
 
 
-def test_nothing_names_the_replaced_single_page_guide():
-    """The one-page guide became the folder docs/guide/; a link to the old page points nowhere."""
-    removed = "guide" + ".md"
-    assert not (ROOT / "docs" / removed).exists()
-    paths = [ROOT / "README.md", ROOT / "pyproject.toml"]
-    for folder, pattern in (("docs", "*.md"), ("jaxrb", "*.py"), ("tests", "*.py"), ("examples", "*.py"),
-                            ("notebooks", "*.py"), ("notebooks", "*.ipynb")):
-        paths += sorted((ROOT / folder).rglob(pattern))
-    named = [str(path.relative_to(ROOT)) for path in paths if removed in path.read_text(errors="replace")]
-    assert not named, named
-
-
 def test_constructor_table_states_what_first_users_guessed_wrong():
     """Issue 61: Capsule's half_length was taken for the length, add_plane's solid side was unknown,
     draw's result was taken for a Figure."""

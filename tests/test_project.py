@@ -5,6 +5,7 @@ import pathlib
 import re
 
 import numpy as np
+import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -105,9 +106,9 @@ def test_design_notes_stay_short_and_hold_their_parts():
         assert part in anchors, part
 
 
-def test_nothing_names_the_removed_performance_diary():
-    """The diary was replaced by docs/design.md; a mention of it in a document, module or test points nowhere."""
-    removed = "performance" + ".md"
+@pytest.mark.parametrize("removed", ["performance" + ".md", "guide" + ".md"])
+def test_nothing_names_a_removed_document(removed):
+    """The diary became docs/design.md and the one-page guide docs/guide/: a mention of either points nowhere."""
     assert not (ROOT / "docs" / removed).exists()
     paths = [ROOT / "README.md", ROOT / "pyproject.toml"]
     for folder, pattern in (("docs", "*.md"), ("jaxrb", "*.py"), ("tests", "*.py"), ("examples", "*.py"),
