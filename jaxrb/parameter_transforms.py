@@ -77,7 +77,9 @@ def _check_open(name, low=None, high=None, closed=False):
             bounds = f"{left}{low if low is not None else '-inf'}, {high if high is not None else 'inf'}{right}"
             raise ValueError(f"sysid: field {field!r} has values {array.tolist()} outside the "
                              f"{'closed' if closed else 'open'} interval {bounds} of its {name!r} transform; "
-                             f"start the fit from a value inside it")
+                             f"start the fit from a value inside it"
+                             + (f", or fit it on [0, 1] with transforms={{{field!r}: 'clip'}}" if name == "sigmoid"
+                                else ""))
     return check
 
 
@@ -273,12 +275,19 @@ def to_unconstrained(params: Params, fields, transforms: Optional[Mapping] = Non
             domain (a zero mass under "log", a restitution of 1 under "sigmoid").
     """
     unconstrained = {}
-    for name in field_masks(params, fields):
+    for name, mask in field_masks(params, fields).items():
         value = getattr(params, name)
         transform, check = _resolve_transform(name, params, transforms)
+        array = np.asarray(value)
+        if mask is not True:
+            # Only the fitted elements need be in the transform's domain; the others (e.g. the
+            # default restitution 0 of bodies not fitted) keep their value and get a fitted
+            # element's in u, which from_unconstrained never reads.
+            mask = np.reshape(mask, mask.shape + (1,) * (array.ndim - mask.ndim))
+            array = np.where(mask, array, array[np.broadcast_to(mask, array.shape)][0])
         if check is not None:
-            check(name, value)
-        unconstrained[name] = jnp.asarray(transform.inverse(np.asarray(value)), dtype=value.dtype)
+            check(name, array)
+        unconstrained[name] = jnp.asarray(transform.inverse(array), dtype=value.dtype)
     return unconstrained
 
 

@@ -435,3 +435,18 @@ def test_recover_friction_and_restitution_of_2d_box_tumbling_onto_ground():
                        optimizer=optax.adam(0.05), num_steps=MAX_FIT_STEPS, tol=1e-4, patience=50)
     assert_recovered(result.params.friction, truth.friction, "friction")
     assert_recovered(result.params.restitution, truth.restitution, "restitution")
+
+
+def test_a_masked_field_checks_only_the_elements_it_fits():
+    """Fitting one body's restitution failed on the other bodies' default 0 (outside the sigmoid's domain)."""
+    scene = rb.Scene(dim=3)
+    scene.add_plane()
+    scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(0.0, 0.0, 0.5))
+    scene.add_body(rb.Sphere(0.1), mass=1.0, pos=(1.0, 0.0, 0.5), restitution=0.7)
+    _, params, _ = scene.build(dt=0.01)
+    only_second = {"restitution": np.array([False, True])}
+    unconstrained = sysid.to_unconstrained(params, only_second)
+    back = sysid.from_unconstrained(unconstrained, params, only_second)
+    np.testing.assert_allclose(back.restitution, [0.0, 0.7], rtol=1e-6)
+    with pytest.raises(ValueError, match=r"outside the open interval.*transforms=\{'restitution': 'clip'\}"):
+        sysid.to_unconstrained(params, "restitution")  # the whole field: body 0's 0 is outside (0, 1)
