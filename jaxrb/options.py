@@ -233,7 +233,7 @@ def grouped(options: dict) -> dict:
     return options
 
 
-def flat(options: dict) -> dict:
+def flattened(options: dict) -> dict:
     """The inverse of :func:`grouped`: a contact group's options that differ from its defaults, by flat keyword.
 
     Args:

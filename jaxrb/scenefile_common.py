@@ -244,7 +244,7 @@ def _read_build(options, ctx, where="build"):
 
 def _plain_build_options(options: dict) -> dict:
     plain = {}
-    for key, value in contact_options.flat(options).items():  # a contact group's options stored flat
+    for key, value in contact_options.flattened(options).items():  # a contact group's options stored flat
         if key == "dtype" and value is not None and not isinstance(value, str):
             value = np.dtype(value).name
         elif isinstance(value, np.generic):
