@@ -20,7 +20,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from jaxrb.types import PENALTY_FRICTIONS, SOLVERS, check_option, param_bounds
+from jaxrb.types import PENALTY_FRICTIONS, SOLVERS, check_option, check_param_values, param_bounds
 
 
 def _check_number(label, name, value, bounds, optional):
@@ -28,12 +28,7 @@ def _check_number(label, name, value, bounds, optional):
         return
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{label}: {name!r} must be a number, got {value!r}")
-    low, high, low_open = bounds["low"], bounds["high"], bounds["low_open"]
-    if not np.isfinite(value) or (low is not None and (value < low or (low_open and value == low))) \
-            or (high is not None and value > high):
-        where = (f"{'>' if low_open else '>='} {low}" if low is not None else "finite") + \
-            (f" and <= {high}" if high is not None else "")
-        raise ValueError(f"{label}: {name!r} must be {where}, got {value!r}")
+    check_param_values(label, name, value, 3, bounds=bounds)
 
 
 def _check_integer(label, name, value, low):

@@ -298,7 +298,7 @@ PARAM_BOUNDS = {
 
 
 def param_bounds(name: str) -> dict:
-    """``PARAM_BOUNDS[name]`` as keywords ``low``, ``high``, ``low_open`` (all None-free defaults if unbounded).
+    """``PARAM_BOUNDS[name]`` as keywords ``low``, ``high``, ``low_open`` (None, None, False if unbounded).
 
     Args:
         name: a Params field.
@@ -310,14 +310,15 @@ def param_bounds(name: str) -> dict:
     return dict(low=low, high=high, low_open=low_open)
 
 
-def check_param_values(label: str, name: str, value, dim: int) -> None:
+def check_param_values(label: str, name: str, value, dim: int, bounds: Optional[dict] = None) -> None:
     """Raise a ValueError naming ``label`` and ``name`` where ``value`` is not a valid value of that field.
 
     Args:
         label: who checks, e.g. ``"Params.replace"``.
-        name: the Params field.
+        name: the Params field (or an option named after one).
         value: a concrete array of the field's values (any leading batch axes).
         dim: 2 or 3 (how ``inertia`` is laid out).
+        bounds: :func:`param_bounds` of the field; default ``param_bounds(name)``.
 
     Raises:
         ValueError: non-finite values, values outside :data:`PARAM_BOUNDS`,
@@ -327,14 +328,16 @@ def check_param_values(label: str, name: str, value, dim: int) -> None:
 
     def fail(bad, why):
         index = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"{label}: field {name!r} must be {why}, got {array[index]} at index {index}")
+        where = f" at index {index}" if index else ""
+        raise ValueError(f"{label}: field {name!r} must be {why}, got {array[index]}{where}")
 
     if not np.all(np.isfinite(array)):
         fail(~np.isfinite(array), "finite")
-    bounds = param_bounds(name)
+    bounds = param_bounds(name) if bounds is None else bounds
     low, high = bounds["low"], bounds["high"]
-    if low is not None and np.any(array <= low if bounds["low_open"] else array < low):
-        fail(array <= low if bounds["low_open"] else array < low, f"{'>' if bounds['low_open'] else '>='} {low}")
+    below = None if low is None else (array <= low if bounds["low_open"] else array < low)
+    if below is not None and np.any(below):
+        fail(below, f"{'>' if bounds['low_open'] else '>='} {low}")
     if high is not None and np.any(array > high):
         fail(array > high, f"<= {high}")
     if name == "inertia":
