@@ -23,7 +23,7 @@ from benchmarks.scenes import (LOOP_SUFFIX, PYRAMID_ROWS, PYRAMID_TOP, STACK_COU
 from jaxrb.bench import contact, free_body
 from jaxrb.bench.report import fmt_step
 from jaxrb.bench.timing import final_state_fn
-from jaxrb.options import grouped
+from jaxrb.model.options import grouped
 
 
 def _user_loop(step: Callable, num_steps: int, batched: bool) -> Callable:

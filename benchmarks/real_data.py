@@ -4,9 +4,9 @@ The data (``examples/cube_tosses/cube_tosses.npz``, or the file named by the
 ``JAXRB_CUBE_TOSSES`` environment variable) is split once, seeded, into a
 training half and a validation half. jaxrb's model
 (``examples/cube_tosses/cube.json``: penalty contact, spring friction) is fitted on
-the training half with ``jaxrb.fit_data.fit_measured`` (short horizons,
+the training half with ``jaxrb.fit.fit_data.fit_measured`` (short horizons,
 Levenberg–Marquardt), timed with its compile, and every model is scored on
-the validation half by the published protocol (:mod:`jaxrb.evaluate`). The
+the validation half by the published protocol (:mod:`jaxrb.fit.evaluate`). The
 peers use the publishers' fitted parameters (:mod:`benchmarks.toss_peers`)
 from the same free-flight initial states. The noise floor and a fit on each
 half of the training set (do the two agree within their standard errors?)
@@ -47,11 +47,11 @@ def _row(name, scores, seconds=None):
 
 def real_data_section(settings: dict, log=print):
     """Run the section; return ``(markdown, results)``."""
-    from jaxrb import evaluate
+    from jaxrb.fit import evaluate
     from benchmarks import toss_peers
-    from jaxrb.fit_data import build_for_data, fit_measured
-    from jaxrb.initial_state import estimate_initial_states
-    from jaxrb.measured import load_trajectories
+    from jaxrb.fit.fit_data import build_for_data, fit_measured
+    from jaxrb.fit.initial_state import estimate_initial_states
+    from jaxrb.fit.measured import load_trajectories
 
     path = data_path()
     if not os.path.exists(path):

@@ -5,7 +5,7 @@ their values are in ``examples/cube_tosses/DATA.md``. Each peer here
 runs every toss from the same free-flight initial state that jaxrb gets
 (estimated from the raw data, as the publishers did: no length calibration),
 10 substeps per 1/148 s sample, and returns poses at the samples, scored by
-the same metric (:mod:`jaxrb.evaluate`). Both are optional (the ``peers``
+the same metric (:mod:`jaxrb.fit.evaluate`). Both are optional (the ``peers``
 extra): a missing one is reported as such.
 """
 

@@ -16,7 +16,7 @@ import numpy as np
 
 import jaxrb as rb
 from jaxrb import evaluate, fit_data
-from jaxrb.measured import load_trajectories
+from jaxrb.fit.measured import load_trajectories
 
 QUICK = os.environ.get("JAXRB_QUICK") == "1"
 OUT = os.environ.get("JAXRB_OUT", "out")

@@ -26,13 +26,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxrb.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
-from jaxrb.collision.pairs import build_pair_groups
-from jaxrb.integrators import body_frame_momentum
-from jaxrb.options import Contact, flat_options
-from jaxrb.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
-                         QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option,
-                         param_bounds)
+from jaxrb.model.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
+from jaxrb.physics.collision.pairs import build_pair_groups
+from jaxrb.physics.integrators import body_frame_momentum
+from jaxrb.model.options import Contact, flat_options
+from jaxrb.model.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
+                               QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option,
+                               param_bounds)
 
 DEFAULT_DENSITY = 1000.0
 ALL_BITS = 0xFFFFFFFF
@@ -132,7 +132,7 @@ def _given_arguments(arguments: dict, method) -> dict:
     """The keyword arguments of one add_body/add_plane call that differ from the defaults.
 
     Kept so a scene can be written to a file and replayed through the same
-    method (:mod:`jaxrb.scenefile`). Arrays are copied, so a caller mutating
+    method (:mod:`jaxrb.files.scenefile`). Arrays are copied, so a caller mutating
     its own array afterwards does not change the record.
     """
     defaults = {name: parameter.default for name, parameter in
@@ -164,7 +164,7 @@ class Scene:
     """Collects bodies on the host, then builds the arrays the step runs on.
 
     The arguments of every accepted ``add_body``/``add_plane`` call are kept
-    (those that differ from the defaults), so :mod:`jaxrb.scenefile` can save
+    (those that differ from the defaults), so :mod:`jaxrb.files.scenefile` can save
     the scene and replay it through the same methods.
 
     Args:
@@ -182,7 +182,7 @@ class Scene:
         self.gravity = _Fields("scene").array("gravity", gravity, (dim,))
         self._bodies: list[_Body] = []
         self._planes: list[_Plane] = []
-        # The arguments of each accepted add_body/add_plane call, for jaxrb.scenefile.
+        # The arguments of each accepted add_body/add_plane call, for jaxrb.files.scenefile.
         self._body_args: list[dict] = []
         self._plane_args: list[dict] = []
 
@@ -198,7 +198,7 @@ class Scene:
         """Add a dynamic body and return its index.
 
         Args:
-            shape: a shape from :mod:`jaxrb.shapes`, or ``None`` for a body given
+            shape: a shape from :mod:`jaxrb.model.shapes`, or ``None`` for a body given
                 only ``mass`` and ``inertia``.
             mass: scalar total mass (kg). Scales the shape's inertia to match.
             density: kg/m³ (3D) or kg/m² (2D); used when ``mass`` is not given.
@@ -341,7 +341,7 @@ class Scene:
         Args:
             dt: time step of one ``step`` call (s), > 0.
             integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``,
-                ``"rk4_body"`` (see :mod:`jaxrb.integrators`).
+                ``"rk4_body"`` (see :mod:`jaxrb.physics.integrators`).
             orientation: ``"first_order"`` or ``"exp_map"`` (default). The RK4s integrate
                 the quaternion ODE themselves, so they take no orientation option.
             contact: the contact model and its options: ``rb.Impulse(...)``,
@@ -378,12 +378,12 @@ class Scene:
             **deprecated: the contact models' options as flat keywords
                 (``iterations=8``, ``penalty_stiffness=2e4``, ...): still
                 taken for one release, with a DeprecationWarning
-                (:data:`jaxrb.options.FLAT_KEYWORDS` maps them).
+                (:data:`jaxrb.model.options.FLAT_KEYWORDS` maps them).
 
         Returns:
-            ``(model, params, state)``: the static :class:`~jaxrb.types.Model`,
-            the differentiable :class:`~jaxrb.types.Params` and the initial
-            :class:`~jaxrb.types.State`.
+            ``(model, params, state)``: the static :class:`~jaxrb.model.types.Model`,
+            the differentiable :class:`~jaxrb.model.types.Params` and the initial
+            :class:`~jaxrb.model.types.State`.
         """
         contact, model_options = flat_options(contact, deprecated)
         return self._build(dt, integrator, orientation, contact, substeps, dtype, broadphase=broadphase,
@@ -395,7 +395,7 @@ class Scene:
                contact_hertz, contact_damping_ratio, max_push_velocity, penalty_stiffness, penalty_damping,
                penalty_frequency, penalty_damping_ratio, penalty_width, penalty_friction, friction_velocity,
                impulse_smoothing, time_of_impact):
-        """:meth:`build` with every option as a flat keyword (:func:`jaxrb.options.flat_options`)."""
+        """:meth:`build` with every option as a flat keyword (:func:`jaxrb.model.options.flat_options`)."""
         check = _Fields("scene.build")
         if not self._bodies:
             raise ValueError("scene.build: the scene has no bodies; add one with add_body")

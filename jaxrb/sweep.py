@@ -34,8 +34,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxrb.compile import jit
-from jaxrb.step import rollout
-from jaxrb.types import DERIVED_PARAMS, Params, State, check_param_values
+from jaxrb.physics.step import rollout
+from jaxrb.model.types import DERIVED_PARAMS, Params, State, check_param_values
 
 #: Name of the one mesh axis the batch is split over.
 BATCH_AXIS = "batch"

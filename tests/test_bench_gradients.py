@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxrb import plane_penalty
+from jaxrb.physics import plane_penalty
 from jaxrb.bench import gradients
 
 TINY = dict(gradient_scenes=("tumble",), gradient_memory_steps=(1000,), gradient_time_steps=1000,

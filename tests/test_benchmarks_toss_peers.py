@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks import toss_peers
-from jaxrb.initial_state import quat_exp, quat_multiply
+from jaxrb.fit.initial_state import quat_exp, quat_multiply
 
 HALF_WIDTH = 0.0524  # m, the cube's half edge (benchmarks.toss_peers.CUBE_HALF_WIDTH)
 DT = 1 / 148  # s, the tosses' sample spacing

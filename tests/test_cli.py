@@ -8,8 +8,8 @@ import pytest
 from PIL import Image
 
 import jaxrb as rb
-from jaxrb.cli import main
-from jaxrb.runner import _segments
+from jaxrb.cli.main import main
+from jaxrb.cli.runner import _segments
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 

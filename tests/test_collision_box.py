@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxrb import quaternion
-from jaxrb.collision.box import box_box, box_capsule, box_sphere, points_box
+from jaxrb.math import quaternion
+from jaxrb.physics.collision.box import box_box, box_capsule, box_sphere, points_box
 
 EYE3 = np.eye(3)
 # Rotation taking shape z to world x (a capsule lying along x).
@@ -615,7 +615,7 @@ def test_box_box_slots_stable_under_tiny_shifts():
     import jax.numpy as jnp
     import numpy as np
 
-    from jaxrb.collision.box import box_box
+    from jaxrb.physics.collision.box import box_box
 
     half = (jnp.array([0.1, 0.1, 0.1]),)
     rotation = jnp.eye(3)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxrb.collision.geometry import polygon_arrays
-from jaxrb.collision.planar import points_polygon, polygon_polygon, polygon_sphere
-from jaxrb.math import rot2
+from jaxrb.physics.collision.geometry import polygon_arrays
+from jaxrb.physics.collision.planar import points_polygon, polygon_polygon, polygon_sphere
+from jaxrb.math.vector import rot2
 
 KERNELS = {"polygon_polygon": polygon_polygon, "polygon_sphere": polygon_sphere,
            "points_polygon": points_polygon}

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxrb import quaternion
-from jaxrb.collision.contacts import Contacts
-from jaxrb.collision.round import PARALLEL_SIN, capsule_capsule, capsule_sphere, sphere_sphere
+from jaxrb.math import quaternion
+from jaxrb.physics.collision.contacts import Contacts
+from jaxrb.physics.collision.round import PARALLEL_SIN, capsule_capsule, capsule_sphere, sphere_sphere
 
 EYE3 = np.eye(3)
 # Rotation taking shape z to world x (a capsule lying along x), and to world y.

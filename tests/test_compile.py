@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb import components as vec
+from jaxrb.math import components as vec
 from jaxrb.compile import CPU_COMPILER_OPTIONS, compiler_options
 
 

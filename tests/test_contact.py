@@ -238,7 +238,7 @@ def test_static_row_reads_and_sums_equal_gather_and_segment_sum():
     a plane on side B (the static row n); with a broadphase the picked pairs'
     bodies are data, read one pair at a time.
     """
-    from jaxrb.collision.pairs import detect, plane_rows, row_summer, row_taker, static_rows
+    from jaxrb.physics.collision.pairs import detect, plane_rows, row_summer, row_taker, static_rows
 
     scene = rb.Scene(dim=3)
     scene.add_plane()
@@ -306,7 +306,7 @@ def test_broadphase_overflow_is_reported(contact):
 
 def test_broadphase_compaction_keeps_the_first_flagged_pairs_in_order():
     """_first_true against numpy's nonzero: sizes around its block sizes, too few and too many flags."""
-    from jaxrb.collision.pairs import _first_true
+    from jaxrb.physics.collision.pairs import _first_true
 
     rng = np.random.default_rng(0)
     for count, capacity, density in ((1, 1, 1.0), (2, 5, 0.5), (7, 3, 0.9), (100, 10, 0.05), (1485, 150, 0.09)):
@@ -508,7 +508,7 @@ def test_jacobi_row_couplings_match_the_split_sub_bodies():
     the 3x3 world inverse inertias, for a box resting on a plane and a
     tilted box resting on it (rows with a static side and rows with two bodies).
     """
-    from jaxrb.contact import common, rows
+    from jaxrb.physics.contact import common, rows
 
     scene = rb.Scene(dim=3)
     scene.add_plane(friction=0.5)
@@ -564,7 +564,7 @@ def _clamped_oscillator_restitution(zeta, steps=200_000):
 @pytest.mark.parametrize("zeta", [0.05, 0.3, 0.7, 1.0, 1.5, 3.0])
 def test_clamped_spring_damper_restitution_closed_form(zeta):
     """The closed form (both branches and ζ = 1) against a fine integration (h = 1e-4/ω₀: error ~1e-4)."""
-    from jaxrb.contact.penalty import restitution_of_damping_ratio
+    from jaxrb.physics.contact.penalty import restitution_of_damping_ratio
     assert float(restitution_of_damping_ratio(zeta)) == pytest.approx(_clamped_oscillator_restitution(zeta),
                                                                       abs=3e-4)
 

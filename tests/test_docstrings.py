@@ -3,14 +3,14 @@
 What is public (walked by :func:`public_symbols`, pure introspection, no tracing):
 
 * every function and class named in ``jaxrb.__all__`` (wherever it is defined,
-  e.g. ``ContactSet`` and ``detect_contacts`` from ``jaxrb.collision.pairs``);
+  e.g. ``ContactSet`` and ``detect_contacts`` from ``jaxrb.physics.collision.pairs``);
 * every function and class without a leading underscore *defined* in one of
-  the public modules ``jaxrb.quaternion``, ``jaxrb.math``, ``jaxrb.shapes``,
-  ``jaxrb.dynamics``, ``jaxrb.integrators``, ``jaxrb.step``, ``jaxrb.types``,
-  ``jaxrb.scene``, ``jaxrb.sysid`` (with ``jaxrb.observations`` and
-  ``jaxrb.parameter_transforms``, whose names it re-exports), ``jaxrb.sweep``,
-  and ``jaxrb.render``, ``jaxrb.scenefile``, ``jaxrb.scenefile_common``,
-  ``jaxrb.mjcf`` and ``jaxrb.analytic`` when those exist (they are picked up automatically),
+  the public modules ``jaxrb.math.quaternion``, ``jaxrb.math.vector``, ``jaxrb.model.shapes``,
+  ``jaxrb.physics.dynamics``, ``jaxrb.physics.integrators``, ``jaxrb.physics.step``, ``jaxrb.model.types``,
+  ``jaxrb.scene``, ``jaxrb.fit.sysid`` (with ``jaxrb.fit.observations`` and
+  ``jaxrb.fit.parameter_transforms``, whose names it re-exports), ``jaxrb.sweep``,
+  and ``jaxrb.render``, ``jaxrb.files.scenefile``, ``jaxrb.files.common``,
+  ``jaxrb.files.mjcf`` and ``jaxrb.analytic`` when those exist (they are picked up automatically),
   plus any module named in ``jaxrb.__all__``. Names a module merely imports
   (``jax``, ``numpy``, another jaxrb module's function) are checked where they
   are defined; only objects whose ``__module__`` is inside ``jaxrb`` count;
@@ -18,8 +18,8 @@ What is public (walked by :func:`public_symbols`, pure introspection, no tracing
   ``Model.summary``, ``State.replace``, ...), dunder methods excluded.
 
 Internal, unless a name from them is in ``jaxrb.__all__``: ``jaxrb.bench``,
-``jaxrb.collision.*``, ``jaxrb.contact.*``, ``jaxrb.cli``, ``jaxrb.runner``,
-``jaxrb.demo`` and ``jaxrb._struct``. They still deserve docstrings, but this
+``jaxrb.physics.collision.*``, ``jaxrb.physics.contact.*``, ``jaxrb.cli.main``, ``jaxrb.cli.runner``,
+``jaxrb.cli.demo`` and ``jaxrb.model.struct``. They still deserve docstrings, but this
 test does not hold them to the rule; nor the repository's ``benchmarks/``
 folder, which is not part of the package.
 
@@ -67,10 +67,11 @@ import pytest
 
 import jaxrb
 
-PUBLIC_MODULES = ("quaternion", "math", "shapes", "dynamics", "integrators", "step", "types",
-                  "scene", "sysid", "observations", "parameter_transforms", "sweep")
+PUBLIC_MODULES = ("math.quaternion", "math.vector", "model.shapes", "physics.dynamics", "physics.integrators",
+                  "physics.step", "model.types", "scene", "fit.sysid", "fit.observations",
+                  "fit.parameter_transforms", "sweep")
 # Covered as soon as they exist (written alongside this test).
-OPTIONAL_MODULES = ("render", "scenefile", "scenefile_common", "mjcf", "analytic")
+OPTIONAL_MODULES = ("render", "files.scenefile", "files.common", "files.mjcf", "analytic")
 
 # Parameter and field names that hold arrays in this codebase (grepped from the
 # public signatures): their entries must give a shape.
@@ -404,16 +405,16 @@ def test_public_modules_import():
 
 def test_walker_finds_the_api():
     names = {name for name, _, _ in SYMBOLS}
-    for expected in ("jaxrb.step.make_step", "jaxrb.step.rollout", "jaxrb.types.State",
-                     "jaxrb.types.Model.summary", "jaxrb.scene.Scene.add_body",
-                     "jaxrb.collision.pairs.detect", "jaxrb.collision.pairs.ContactSet",
-                     "jaxrb.quaternion.multiply", "jaxrb.sysid.fit", "jaxrb.sweep.batch_params"):
+    for expected in ("jaxrb.physics.step.make_step", "jaxrb.physics.step.rollout", "jaxrb.model.types.State",
+                     "jaxrb.model.types.Model.summary", "jaxrb.scene.Scene.add_body",
+                     "jaxrb.physics.collision.pairs.detect", "jaxrb.physics.collision.pairs.ContactSet",
+                     "jaxrb.math.quaternion.multiply", "jaxrb.fit.sysid.fit", "jaxrb.sweep.batch_params"):
         assert expected in names, expected
     # Re-exported third-party names (types.Array is jax.Array) and private names are left out.
     assert all(_in_jaxrb(obj) for _, obj, is_method in SYMBOLS
                if not is_method and not isinstance(obj, types.ModuleType))
     assert not any(name.rsplit(".", 1)[-1].startswith("_") for name in names)
-    assert "jaxrb.types.Array" not in names and "jaxrb.sysid.rollout" not in names
+    assert "jaxrb.model.types.Array" not in names and "jaxrb.fit.sysid.rollout" not in names
     for optional in OPTIONAL_MODULES:
         if importlib.util.find_spec("jaxrb." + optional) is not None:
             assert any(name.startswith(f"jaxrb.{optional}.") for name in names), optional

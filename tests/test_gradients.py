@@ -291,7 +291,7 @@ def test_impulse_solver_derivatives_equal_those_of_its_branching_forward(monkeyp
     than the default keeps the two compiles short; the sweeps share
     ``_sweep_rows``.)
     """
-    from jaxrb.contact import sequential
+    from jaxrb.physics.contact import sequential
 
     scene = rb.Scene(dim=2, gravity=(0.0, -G))
     scene.add_plane(friction=0.5, restitution=0.3)
@@ -326,7 +326,7 @@ def test_cotangent_once_is_the_identity_to_every_order():
     gradient of a gradient must still be taken (and equal the plain one's).
     A loop, as in the solver, whose body reads a loop constant as the probe.
     """
-    from jaxrb.contact import impulse
+    from jaxrb.physics.contact import impulse
 
     def loss(x, h, once):
         probe = jnp.cos(x)

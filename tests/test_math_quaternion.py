@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxrb import components as vec
-from jaxrb import math as rbm
-from jaxrb import quaternion as Q
-
+from jaxrb.math import components as vec
+from jaxrb.math import vector as rbm
+from jaxrb.math import quaternion as Q
 RNG = np.random.default_rng(0)
 
 

@@ -16,9 +16,11 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb import evaluate, fit_data, least_squares
-from jaxrb.initial_state import quat_exp, quat_multiply, estimate_initial_states, free_samples, length_scale
-from jaxrb.measured import load_trajectories, make_trajectories, save_trajectories
+from jaxrb.fit import evaluate
+from jaxrb.fit import fit_data
+from jaxrb.fit import least_squares
+from jaxrb.fit.initial_state import quat_exp, quat_multiply, estimate_initial_states, free_samples, length_scale
+from jaxrb.fit.measured import load_trajectories, make_trajectories, save_trajectories
 
 EXAMPLE = os.path.join(os.path.dirname(__file__), "..", "examples", "cube_tosses")
 CUBE_TOSSES = os.path.join(EXAMPLE, "cube_tosses.npz")
@@ -220,7 +222,7 @@ def test_fit_recovers_known_friction_and_restitution(synthetic_tosses):
 
 
 def test_command_line_fit_and_evaluate(synthetic_tosses, tmp_path, capsys):
-    from jaxrb.cli import main
+    from jaxrb.cli.main import main
     data = tmp_path / "tosses.npz"
     save_trajectories(data, synthetic_tosses)
     scene = os.path.join(EXAMPLE, "cube.json")

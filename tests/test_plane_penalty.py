@@ -1,8 +1,8 @@
-"""make_step's component form (jaxrb.plane_penalty) against the step on (n, 3) arrays.
+"""make_step's component form (jaxrb.physics.plane_penalty) against the step on (n, 3) arrays.
 
 Both are the same physics; make_step returns the component form for every
 model :func:`supports` accepts. Each test rolls a scene out both ways (the
-generic way with ``jaxrb.step.generic_step``) in float64, where the two differ only by rounding (1e-16 relative), which
+generic way with ``jaxrb.physics.step.generic_step``) in float64, where the two differ only by rounding (1e-16 relative), which
 stiff contact amplifies over a few hundred steps to about 1e-9; a wrong
 sign, a missed term or a dropped row shows up at 1e-3 and above.
 """
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb import plane_penalty
-from jaxrb.step import generic_step
+from jaxrb.physics import plane_penalty
+from jaxrb.physics.step import generic_step
 
 FIELDS = ("pos", "vel", "angvel", "quat", "contact_impulse", "contact_key", "time", "overflow")
 STEPS = 210

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb import adjoint, plane_penalty_adjoint
-
+from jaxrb.physics import adjoint
+from jaxrb.physics import plane_penalty_adjoint
 NUM_STEPS = 60
 TOLERANCE = 1e-8
 PLANES_ONLY = dict(collision_category=2, collision_mask=1)  # no body-body pair: the plane-penalty path
@@ -105,7 +105,7 @@ def assert_same_gradients(expected, got, quat=None):
 
     With ``quat`` (the initial State's), the initial quaternion's cotangent
     is compared along the unit sphere only: the adjoint differs from
-    autodiff along q itself, by design (``jaxrb.plane_penalty_adjoint``).
+    autodiff along q itself, by design (``jaxrb.physics.plane_penalty_adjoint``).
     """
     leaves = [(jax.tree_util.keystr(path), want, have) for (path, want), have
               in zip(jax.tree_util.tree_leaves_with_path(expected), jax.tree_util.tree_leaves(got))

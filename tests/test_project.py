@@ -28,7 +28,7 @@ def test_ci_runs_exactly_the_readme_test_command():
 
 
 def test_demo_runs(capsys, tmp_path):
-    from jaxrb.cli import main
+    from jaxrb.cli.main import main
 
     assert main(["demo", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out

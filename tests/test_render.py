@@ -397,7 +397,7 @@ def test_contacts_3d(box_drop):
     # Without contacts=True nothing of the kind is drawn.
     plain = render.draw(model, params, state)  # a new pyplot 3D figure
     assert plain.name == "3d"
-    assert not [a for a in plain.get_children() if str(a.get_gid()).startswith("jaxrb.contact")]
+    assert not [a for a in plain.get_children() if str(a.get_gid()).startswith("jaxrb.physics.contact")]
 
 
 def test_contacts_behind_a_box_are_covered_by_it_3d(box_drop):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb.types import CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS, SOLVERS
+from jaxrb.model.types import CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS, SOLVERS
 
 NAN, INF = float("nan"), float("inf")
 

@@ -12,10 +12,9 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb import mjcf
-from jaxrb import scenefile as sf
-from jaxrb import scenefile_common
-
+from jaxrb.files import mjcf
+from jaxrb.files import scenefile as sf
+from jaxrb.files import common as scenefile_common
 EXAMPLE = pathlib.Path(__file__).resolve().parent.parent / "examples" / "box_drop.xml"
 
 
@@ -175,7 +174,7 @@ def test_every_add_body_and_build_keyword_is_typed():
     assert plane_keys == set(sf._plane_field_checkers(3))
     kinds = scenefile_common._build_kinds()
     assert set(kinds) == (set(inspect.signature(rb.Scene.build).parameters) - {"self", "deprecated"}
-                          | set(rb.options.FLAT_KEYWORDS))
+                          | set(rb.model.options.FLAT_KEYWORDS))
     assert all(kind.rstrip("?") != "any" for kind in kinds.values()), kinds
     assert kinds["dt"] == "number" and kinds["substeps"] == "integer?" and kinds["contact"] == "string?"
 
@@ -280,11 +279,11 @@ def test_suffixes(tmp_path):
 
 def test_modules_split_without_a_cycle():
     """JSON (scenefile), MJCF (mjcf) and what they share (scenefile_common): the old names
-    still import from jaxrb.scenefile, and neither mjcf nor scenefile_common imports scenefile."""
+    still import from jaxrb.files.scenefile, and neither mjcf nor scenefile_common imports scenefile."""
     assert sf.SceneFile is scenefile_common.SceneFile is rb.SceneFile
     assert sf.scene_from_mjcf is mjcf.scene_from_mjcf
-    for module, forbidden in ((mjcf, {"jaxrb.scenefile"}),
-                              (scenefile_common, {"jaxrb.scenefile", "jaxrb.mjcf"})):
+    for module, forbidden in ((mjcf, {"jaxrb.files.scenefile"}),
+                              (scenefile_common, {"jaxrb.files.scenefile", "jaxrb.files.mjcf"})):
         tree = ast.parse(pathlib.Path(module.__file__).read_text())
         imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import)
                     for alias in node.names}

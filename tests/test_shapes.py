@@ -11,7 +11,7 @@ import pytest
 from scipy.integrate import quad
 
 import jaxrb as rb
-from jaxrb.shapes import ShapeError, check_inertia, mass_properties, validate_shape
+from jaxrb.model.shapes import ShapeError, check_inertia, mass_properties, validate_shape
 
 
 def cell_centres(num, low, high, dim=3):
@@ -62,7 +62,7 @@ def capsule_by_slices(radius, half_length):
     Integrates thin discs over z with adaptive quadrature: a disc of radius ρ at
     height z contributes π ρ² dz to the mass, π ρ⁴/2 dz to the axial moment and
     (π ρ⁴/4 + π ρ² z²) dz to the transverse moment. This shares nothing with the
-    hemisphere-plus-parallel-axis formula in jaxrb.shapes.
+    hemisphere-plus-parallel-axis formula in jaxrb.model.shapes.
     """
     def rho_sq(z):
         beyond = max(abs(z) - half_length, 0.0)

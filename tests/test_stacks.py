@@ -6,7 +6,7 @@ the soft contact comes from substeps (default contact_hertz =
 0.25·substeps/dt). ``Scene.build(dt=1/60)`` with no other option (8
 substeps) must hold the 3D stack, the pyramid and a 1:50 ratio to the issue-60
 figures (sinks < 2 mm, drifts < 1 mm); 4 substeps hold them to the looser
-issue-3 criteria (see jaxrb/contact/impulse.py, "Stiffness and stacks"). Penalty contact at its
+issue-3 criteria (see jaxrb/physics/contact/impulse.py, "Stiffness and stacks"). Penalty contact at its
 test step h = 1 ms for the 3D stack and the pyramid; it does not hold the
 20-box 2D column or the 100:1 ratio (see the penalty module's limits).
 """

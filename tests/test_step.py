@@ -181,7 +181,7 @@ def test_rollout_inverts_inertia_once_with_the_same_gradient(dim):
     def loss(trajectory):
         return jnp.sum(trajectory.pos ** 2) + jnp.sum(trajectory.angvel ** 2)
 
-    stale = params.replace(inv_inertia=2.0 * rb.dynamics.inverse_inertia(params, dim))
+    stale = params.replace(inv_inertia=2.0 * rb.physics.dynamics.inverse_inertia(params, dim))
     traj = rb.rollout(step, state, stale, 40)
     reference = by_scan(params)
     np.testing.assert_allclose(traj.angvel, reference.angvel, rtol=1e-12, atol=1e-14)

@@ -25,8 +25,7 @@ import optax
 import pytest
 
 import jaxrb as rb
-from jaxrb import sysid
-
+from jaxrb.fit import sysid
 RECOVERY_TOLERANCE = 0.02  # the issue's requirement
 MAX_FIT_STEPS = 500
 
@@ -252,8 +251,8 @@ def test_fit_recovers_mass_and_inertia_2d_calls_back_and_compiles_once(free_2d):
 def _tumbler_fit_inputs(monkeypatch):
     """``(calls, fit)``: a list that grows each time the adjoint is traced, and a 3D free body's inertia fit."""
     calls = []
-    hand_written = rb.adjoint.rollout
-    monkeypatch.setattr(rb.adjoint, "rollout", lambda *args: calls.append(1) or hand_written(*args))
+    hand_written = rb.physics.adjoint.rollout
+    monkeypatch.setattr(rb.physics.adjoint, "rollout", lambda *args: calls.append(1) or hand_written(*args))
     scene = rb.Scene(dim=3, gravity=(0.0, 0.0, -9.81))
     scene.add_body(None, mass=2.0, inertia=(0.05, 0.08, 0.11), angvel=(0.5, 3.0, -0.2), vel=(1.0, 0.0, 2.0))
     model, truth, state = scene.build(dt=1 / 60)

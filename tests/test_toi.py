@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxrb as rb
-from jaxrb.contact.toi import toi_rows
+from jaxrb.physics.contact.toi import toi_rows
 
 G = 9.81
 T = 1.0  # simulated seconds of the zero-gravity scenes

@@ -36,7 +36,7 @@ import jaxrb as rb
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 from jaxrb.bench.timing import final_state_fn, time_jitted
 from jaxrb.compile import jit
-from jaxrb.options import grouped
+from jaxrb.model.options import grouped
 
 HALF = 0.1
 DROP_CENTRE = 0.5  # m, initial centre height of the dropped box

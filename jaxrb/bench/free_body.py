@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrb as rb
-from jaxrb import quaternion as quat_ops
+from jaxrb.math import quaternion as quat_ops
 from jaxrb.bench.report import fmt_fixed, fmt_sci, fmt_si, fmt_step, markdown_table
 from jaxrb.bench.timing import Stopwatch, final_state_fn, time_jitted
-from jaxrb.types import QUATERNION_ODE_INTEGRATORS
+from jaxrb.model.types import QUATERNION_ODE_INTEGRATORS
 
 # --- the tumbling problem ------------------------------------------------------------------
 

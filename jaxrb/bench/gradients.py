@@ -9,11 +9,11 @@ step). Scenes (float32 by default, like the other throughput benchmarks):
 * **box_bounce**: box (half 0.1 m, 1 kg) dropped from 0.5 m with a tumble,
   restitution 0.5, onto a plane; impulse contact, dt = 1/60 s, 4 substeps.
 * **box_bounce_jacobi**: the same, with the Jacobi impulse solver (all rows
-  of a pass at once on split masses; ``jaxrb.contact.impulse``), whose
+  of a pass at once on split masses; ``jaxrb.physics.contact.impulse``), whose
   passes have no row loop to reverse.
 * **box_drop_penalty**: the same box and drop with penalty contact at the
   box-drop benchmark's step, dt = 2 ms, one substep (the rollout's
-  plane-penalty path, :mod:`jaxrb.plane_penalty`), so that both contact
+  plane-penalty path, :mod:`jaxrb.physics.plane_penalty`), so that both contact
   models' gradients are timed.
 * **tumble**: torque-free body, principal inertia (0.3, 0.35, 0.4) kg m²,
   ω0 = (0.1, 15, 0.1) rad/s, no gravity; semi-implicit Euler, dt = 1/240 s.
@@ -40,7 +40,7 @@ adjoint or in :data:`BATCHED_AUTODIFF` also at ``gradient_batch`` worlds
 
 **Methods** (:data:`METHODS`): ``autodiff`` (``rb.rollout``'s reverse
 mode), ``checkpoint`` (the same with ``checkpoint=True``) and ``adjoint``
-(``rb.rollout(..., adjoint=True)``, :mod:`jaxrb.adjoint`; only where the
+(``rb.rollout(..., adjoint=True)``, :mod:`jaxrb.physics.adjoint`; only where the
 scene's model has one: tumble and box_drop_penalty, not the impulse scenes).
 """
 
@@ -52,11 +52,11 @@ import jax
 import jax.numpy as jnp
 
 import jaxrb as rb
-from jaxrb import adjoint
+from jaxrb.physics import adjoint
 from jaxrb.bench.report import fmt_fixed, markdown_table
 from jaxrb.bench.timing import compile_jitted, time_alternated
-from jaxrb.step import _segment_length
-from jaxrb.options import grouped
+from jaxrb.physics.step import _segment_length
+from jaxrb.model.options import grouped
 
 
 def box_bounce_scene():
@@ -367,8 +367,8 @@ def gradients_section(settings: Optional[dict] = None, log=None):
         f"(at least 3) once {TIME_BUDGET_S:g} s of calls are spent. *method*: `autodiff` is `rb.rollout`'s "
         "reverse mode, `checkpoint` the same with `checkpoint=True`, `adjoint` is "
         "`rb.rollout(..., adjoint=True)`, the hand-written adjoint of 3D semi-implicit free bodies and of "
-        "penalty contact against planes (`jaxrb.adjoint`, "
-        "`jaxrb.plane_penalty_adjoint`; none for impulse contact). *batch*: worlds "
+        "penalty contact against planes (`jaxrb.physics.adjoint`, "
+        "`jaxrb.physics.plane_penalty_adjoint`; none for impulse contact). *batch*: worlds "
         "(`vmap` over the initial state, Params shared, the loss their mean). *temp memory*: "
         "`temp_size_in_bytes` of XLA's `memory_analysis()` of the compiled gradient (scratch besides "
         "arguments and outputs, mostly what is kept for the backward pass: `rb.rollout` "

@@ -91,7 +91,7 @@ import numpy as np
 import jaxrb as rb
 from jaxrb.bench.report import fmt_sci, markdown_table
 from jaxrb.bench.timing import Stopwatch, compile_jitted, time_compiled
-from jaxrb.options import grouped
+from jaxrb.model.options import grouped
 
 G = 9.81
 RADIUS = 0.1

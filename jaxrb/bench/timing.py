@@ -28,7 +28,7 @@ from typing import Any, Callable, Sequence
 import jax
 
 from jaxrb.compile import jit
-from jaxrb.step import rollout
+from jaxrb.physics.step import rollout
 
 
 @dataclasses.dataclass(frozen=True)

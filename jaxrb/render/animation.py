@@ -11,7 +11,7 @@ import numpy as np
 
 from jaxrb.render.common import _check_params, _check_state, _is_positive, _new_axes
 from jaxrb.render.painter import _painter
-from jaxrb.types import Model, Params, State
+from jaxrb.model.types import Model, Params, State
 
 SAVE_SUFFIXES = (".gif", ".mp4", ".html")
 

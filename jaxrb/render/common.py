@@ -10,9 +10,9 @@ from typing import Optional
 import jax
 import numpy as np
 
-from jaxrb.collision.pairs import detect
+from jaxrb.physics.collision.pairs import detect
 from jaxrb.compile import jit
-from jaxrb.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
+from jaxrb.model.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
 
 STATUS_COLORS = {COLLIDING: "tab:red", RESTING: "tab:green", SEPARATING: "tab:orange"}
 STATUS_NAMES = {COLLIDING: "colliding", RESTING: "resting", SEPARATING: "separating"}

@@ -7,8 +7,8 @@ import itertools
 
 import numpy as np
 
-from jaxrb.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere
-from jaxrb.types import Model
+from jaxrb.model.shapes import Box, Capsule, Circle, PointMasses, Polygon, Sphere
+from jaxrb.model.types import Model
 
 # Mesh resolution of spheres and capsules: coarse keeps 3D frames fast.
 _AROUND, _RINGS = 12, 8

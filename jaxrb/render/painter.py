@@ -14,7 +14,7 @@ from jaxrb.render.draw2d import _draw_contacts_2d, _draw_planes_2d, _make_body_2
 from jaxrb.render.draw3d import (_depth_order, _draw_contacts_3d, _draw_planes_3d,
                                  _finish_axes_3d, _make_body_3d)
 from jaxrb.render.geometry import _auto_extent, _geometries, _unit_planes
-from jaxrb.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
+from jaxrb.model.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
 
 
 class _Painter:

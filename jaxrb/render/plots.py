@@ -7,9 +7,9 @@ from typing import Optional, Sequence
 import jax
 import numpy as np
 
-from jaxrb.dynamics import kinetic_energy, potential_energy, total_angular_momentum
+from jaxrb.physics.dynamics import kinetic_energy, potential_energy, total_angular_momentum
 from jaxrb.render.common import _check_params, _check_state, _new_axes
-from jaxrb.types import Model, Params, State
+from jaxrb.model.types import Model, Params, State
 
 
 def _time_axes(ax, caller):

@@ -42,7 +42,7 @@ from jaxrb.bench.hard_cases.chunks import simulate
 from jaxrb.bench.hard_cases.common import (BOX_MASS, FRICTION, HALF, CaseResult, _log, _save_figure,
                                            _settings, _steps)
 from jaxrb.bench.report import fmt_step
-from jaxrb.options import grouped
+from jaxrb.model.options import grouped
 
 REST_TOL = 0.01  # m, impact: |final centre height − 0.1 m| of a body that came to rest
 

@@ -42,7 +42,7 @@ from jaxrb.bench.contact import column_scene, pyramid2d_scene
 from jaxrb.bench.hard_cases.chunks import Trace, simulate
 from jaxrb.bench.hard_cases.common import BOX_MASS, CaseResult, _log, _save_figure, _settings, _steps
 from jaxrb.bench.report import fmt_step
-from jaxrb.options import grouped
+from jaxrb.model.options import grouped
 
 # Issue-3 "stands" criteria (tests/test_stacks.py).
 DRIFT_TOL = 0.01  # m, top box horizontal drift

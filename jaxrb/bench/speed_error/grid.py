@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from jaxrb.bench.free_body import TUMBLE_CONFIGS, tumble_scene
 from jaxrb.bench.report import fmt_step
 from jaxrb.bench.speed_error.scenes import SCENE_NAMES, bounce_scene, roll_scene, slide_scene
-from jaxrb.options import grouped
+from jaxrb.model.options import grouped
 
 
 # --- configuration grids --------------------------------------------------------------------

@@ -38,7 +38,7 @@ import numpy as np
 
 import jaxrb as rb
 from jaxrb import analytic
-from jaxrb import quaternion as quat_ops
+from jaxrb.math import quaternion as quat_ops
 from jaxrb.bench.free_body import TUMBLE_ANGVEL, TUMBLE_INERTIA, compare_flips
 
 GRAVITY = 9.81

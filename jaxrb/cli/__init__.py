@@ -1,0 +1,1 @@
+"""The command line (jaxrb ...), its runner and the demo."""

@@ -1,0 +1,1 @@
+"""Scene files: jaxrb JSON and MJCF."""

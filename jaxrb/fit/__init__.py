@@ -1,0 +1,1 @@
+"""Fitting: sysid, observations, transforms, shooting, least squares, measured data, scoring."""

@@ -1,0 +1,1 @@
+"""Shared math: gradient-safe vector math, quaternions, the component algebra."""

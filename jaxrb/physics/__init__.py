@@ -1,0 +1,1 @@
+"""One step: make_step and rollout, dynamics, integrators, collision, contact, adjoints."""
