@@ -8,6 +8,7 @@ from jaxrb.physics.collision.pairs import ContactSet
 from jaxrb.physics.collision.pairs import detect as _detect
 from jaxrb.physics.dynamics import (angular_momentum, kinetic_energy, potential_energy,
                                     total_angular_momentum, world_inertia, wrench_at_points)
+from jaxrb.model.joints import Ball, Connect, Fixed, Free, Hinge, Slider, Weld
 from jaxrb.model.options import Impulse, Penalty
 from jaxrb.scene import Scene
 from jaxrb.files.scenefile import SceneFile, load_scene, save_scene
@@ -27,6 +28,7 @@ from jaxrb.files import scenefile  # noqa: E402
 from jaxrb.fit import sysid  # noqa: E402
 # Measured data: rb.measured.load_trajectories, rb.fit_data.fit_measured, rb.evaluate.score.
 from jaxrb.fit import evaluate, fit_data, measured  # noqa: E402
+from jaxrb.physics import joints  # noqa: E402  (rb.joints.qpos_qvel, rb.joints.set_qpos_qvel)
 
 __version__ = "0.1.0"
 
@@ -34,6 +36,7 @@ __all__ = [
     "COLLIDING", "ContactSet", "SceneFile", "analytic", "evaluate", "fit_data", "load_scene", "measured",
     "render", "save_scene",
     "scenefile", "INACTIVE", "RESTING", "SEPARATING", "detect_contacts",
+    "Ball", "Connect", "Fixed", "Free", "Hinge", "Slider", "Weld", "joints",
     "Box", "Capsule", "Circle", "Impulse", "Model", "Params", "Penalty", "PointMasses", "Polygon", "Scene", "Sphere",
     "State", "Wrench", "angular_momentum", "jit", "kinetic_energy", "make_step", "point_mass_properties",
     "potential_energy", "quaternion", "rollout", "sweep", "sysid", "total_angular_momentum",

@@ -29,12 +29,17 @@ import numpy as np
 from jaxrb.model.shapes import PointMasses, ShapeError, check_inertia, mass_properties, validate_shape
 from jaxrb.physics.collision.pairs import build_pair_groups
 from jaxrb.physics.integrators import body_frame_momentum
+from jaxrb.model.joints import ACTUATOR_KINDS, EQUALITY_KINDS, JOINT_FRICTIONS, JOINT_KINDS
 from jaxrb.model.options import Contact, flat_options
-from jaxrb.model.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, ORIENTATIONS, PENALTY_FRICTIONS,
-                               QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State, check_option,
-                               param_bounds)
+from jaxrb.physics.joints.tree import ActuatorSpec, EqualitySpec, JointSpec, build_tree, collision_filter
+from jaxrb.physics.joints.step import JOINT_INTEGRATORS, read_out
+from jaxrb.physics.joints.dynamics import LIMIT_HERTZ_CAP
+from jaxrb.model.types import (BROADPHASES, CONTACT_MODELS, INTEGRATORS, JOINT_ONLY_INTEGRATORS, ORIENTATIONS,
+                               PENALTY_FRICTIONS, QUATERNION_ODE_INTEGRATORS, SOLVERS, Model, Params, State,
+                               check_option, param_bounds)
 
 DEFAULT_DENSITY = 1000.0
+EQUALITY_KINDS_BY_NAME = {name: cls for cls, name in EQUALITY_KINDS.items()}
 ALL_BITS = 0xFFFFFFFF
 # Above this many body–body pairs the default broadphase is "spheres".
 ALL_PAIRS_LIMIT = 64
@@ -75,6 +80,7 @@ class _Body:
     linear_damping: float
     angular_damping: float
     collision_filter: tuple = (1, ALL_BITS)
+    shape_frame: Optional[tuple] = None  # the shape's ((x, y, z), (w, x, y, z)) in the body frame
 
 
 @dataclasses.dataclass
@@ -117,7 +123,7 @@ class _Fields:
             self.fail(field, f"must have shape {shape}, got {array.shape}")
         if not np.all(np.isfinite(array)):
             self.fail(field, f"must be finite, got {array.tolist()}")
-        return array
+        return array.copy()  # the scene keeps it: a caller changing its own array later changes nothing
 
     def scalar(self, field, value, low=None, high=None, low_open=False):
         number = float(self.array(field, value, ()))
@@ -185,6 +191,14 @@ class Scene:
         # The arguments of each accepted add_body/add_plane call, for jaxrb.files.scenefile.
         self._body_args: list[dict] = []
         self._plane_args: list[dict] = []
+        self._joints: list[JointSpec] = []
+        self._equalities: list[EqualitySpec] = []
+        self._actuators: list[ActuatorSpec] = []
+        self._excluded_pairs: set = set()  # (body, body) pairs that never collide (exclude_collision)
+        self._excluded_planes: set = set()  # (body, plane) pairs that never collide
+        self._joint_args: list[dict] = []
+        self._equality_args: list[dict] = []
+        self._actuator_args: list[dict] = []
 
     @property
     def num_bodies(self) -> int:
@@ -194,7 +208,8 @@ class Scene:
     def add_body(self, shape=None, *, mass=None, density=None, inertia=None, pos=None,
                  quat=None, angle=None, vel=None, angvel=None, friction=0.5, restitution=0.0,
                  linear_damping=0.0, angular_damping=0.0, collision_category=1,
-                 collision_mask=ALL_BITS, name: Optional[str] = None) -> int:
+                 collision_mask=ALL_BITS, name: Optional[str] = None, com=None, shape_pos=None,
+                 shape_quat=None) -> int:
         """Add a dynamic body and return its index.
 
         Args:
@@ -215,6 +230,12 @@ class Scene:
             collision_category, collision_mask: bit masks; two shapes can touch
                 when each one's category meets the other's mask (Box2D's rule).
             name: used in messages; default ``"body<i>"``.
+            com: (dim,) centre of mass in the body frame, instead of the
+                shape's (``inertia`` is then about it: give it too, or the
+                shape's inertia about its own centre is kept).
+            shape_pos: (3,) where the shape sits in the body frame (3D; a
+                MuJoCo geom placed in its body); default the frame's origin.
+            shape_quat: (4,) the shape's orientation in the body frame.
 
         Returns:
             The body's index i (its row in every (n, ...) array).
@@ -255,6 +276,22 @@ class Scene:
             body_mass = check.scalar("mass", mass, **param_bounds("mass"))
             com, shape_inertia = np.zeros(dim), None
 
+        shape_frame = None
+        if shape_pos is not None or shape_quat is not None:
+            if dim != 3:
+                check.fail("shape_pos" if shape_pos is not None else "shape_quat", "is 3D only")
+            offset = check.array("shape_pos", np.zeros(3) if shape_pos is None else shape_pos, (3,))
+            turn = check.array("shape_quat", (1.0, 0.0, 0.0, 0.0) if shape_quat is None else shape_quat, (4,))
+            if np.linalg.norm(turn) < 1e-12:
+                check.fail("shape_quat", "must be non-zero")
+            turn = turn / np.linalg.norm(turn)
+            rotation = _rotation_matrix(turn)
+            com = offset + rotation @ com
+            if shape_inertia is not None:
+                shape_inertia = rotation @ np.asarray(shape_inertia) @ rotation.T
+            shape_frame = (tuple(offset.tolist()), tuple(turn.tolist()))
+        if arguments["com"] is not None:  # the argument: ``com`` now holds the shape's
+            com = check.array("com", arguments["com"], (dim,))
         if inertia is not None:
             if dim == 2:
                 shape_inertia = check.scalar("inertia", inertia)
@@ -297,7 +334,7 @@ class Scene:
             **{name: check.scalar(name, value, **param_bounds(name)) for name, value in dict(
                 friction=friction, restitution=restitution, linear_damping=linear_damping,
                 angular_damping=angular_damping).items()},
-            collision_filter=_check_filter(check, collision_category, collision_mask)))
+            collision_filter=_check_filter(check, collision_category, collision_mask), shape_frame=shape_frame))
         self._body_args.append(_given_arguments(arguments, Scene.add_body))
         return index
 
@@ -332,16 +369,228 @@ class Scene:
         self._plane_args.append(_given_arguments(arguments, Scene.add_plane))
         return len(self._planes) - 1
 
-    def build(self, dt: float, integrator: str = "semi_implicit", orientation: Optional[str] = None,
+    def exclude_collision(self, body_a: int, body_b: Optional[int] = None, *, plane: Optional[int] = None):
+        """Never let ``body_a`` touch ``body_b`` (or the static plane ``plane``): MJCF's ``<exclude>``.
+
+        Args:
+            body_a: a body index.
+            body_b: another body index, or None when ``plane`` is given.
+            plane: a plane index (from :meth:`add_plane`), or None.
+        """
+        check = _Fields("exclude_collision")
+        body_a = self._body_index(check, "body_a", body_a, allow_world=False)
+        if (body_b is None) == (plane is None):
+            check.fail("body_b", "give exactly one of body_b and plane")
+        if plane is not None:
+            if not isinstance(plane, (int, np.integer)) or not 0 <= plane < len(self._planes):
+                check.fail("plane", f"must be a plane index 0..{len(self._planes) - 1}, got {plane!r}")
+            self._excluded_planes.add((body_a, int(plane)))
+            return
+        body_b = self._body_index(check, "body_b", body_b, allow_world=False)
+        if body_a == body_b:
+            check.fail("body_b", f"is body_a ({body_a}) itself")
+        self._excluded_pairs.add((min(body_a, body_b), max(body_a, body_b)))
+
+    def _body_index(self, check, field, value, allow_world):
+        """A body index from a user (or None for the world where ``allow_world``), as an int; -1 the world."""
+        if value is None and allow_world:
+            return -1
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) \
+                or not 0 <= value < len(self._bodies):
+            world = " or None (the world)" if allow_world else ""
+            check.fail(field, f"must be a body index 0..{len(self._bodies) - 1}{world}, got {value!r}")
+        return int(value)
+
+    def add_joint(self, kind, child, parent=None, *, range=None, ref=0.0, stiffness=0.0, springref=0.0,
+                  damping=0.0, armature=0.0, frictionloss=0.0, name: Optional[str] = None) -> int:
+        """Connect ``child`` to ``parent`` (or the world) by a joint and return the joint's index.
+
+        Joints follow MuJoCo's model (:mod:`jaxrb.model.joints`): anchors and
+        axes are world-frame values at the pose the scene is built in, where
+        each hinge and slide reads ``ref``. Several joints on one body compose
+        in the order added (all to the same parent). A body without joints
+        and without parent is free. Collisions between a body and its parent
+        are off, as in MuJoCo. 3D scenes only.
+
+        Args:
+            kind: ``rb.Hinge(axis, anchor)``, ``rb.Slider(axis)``, ``rb.Ball(anchor)``,
+                ``rb.Fixed()`` or ``rb.Free()``.
+            child: index of the body the joint moves.
+            parent: index of the body it is attached to, or None for the world.
+            range: (2,) lower and upper limit of a hinge (rad) or slide (m);
+                None for no limit.
+            ref: () the coordinate at the built pose (MuJoCo's ``ref``).
+            stiffness: () spring towards ``springref`` (N m/rad or N/m), hinges and slides.
+            springref: () the spring's rest coordinate.
+            damping: () viscous damping per dof (N m s/rad or N s/m).
+            armature: () reflected rotor inertia per dof (kg m² or kg).
+            frictionloss: () Coulomb friction bound per dof (N m or N); see
+                ``scene.build``'s ``joint_friction``.
+            name: used in messages; default ``"joint<i>"``.
+
+        Returns:
+            The joint's index (for :meth:`add_actuator`).
+        """
+        arguments = dict(locals())
+        index = len(self._joints)
+        name = name if name is not None else f"joint{index}"
+        check = _Fields(f"joint {index} ({name!r})")
+        if self.dim != 3:
+            check.fail("kind", "joints are 3D only for now: build 2D mechanisms in a 3D scene with hinges "
+                               "about z")
+        if type(kind) not in JOINT_KINDS:
+            check.fail("kind", f"must be one of rb.{', rb.'.join(cls.__name__ for cls in JOINT_KINDS)}, "
+                               f"got {kind!r}")
+        kind_name = JOINT_KINDS[type(kind)]
+        child = self._body_index(check, "child", child, allow_world=False)
+        parent = self._body_index(check, "parent", parent, allow_world=True)
+        if child == parent:
+            check.fail("parent", f"is the child body {child} itself; a joint connects two bodies (or a body and "
+                                 "the world, parent=None)")
+        if kind_name == "free" and parent != -1:
+            check.fail("parent", "must be None (the world) for a free joint, as in MuJoCo")
+        axis = anchor = None
+        if kind_name in ("hinge", "slide"):
+            axis = check.array("axis", kind.axis, (3,))
+            if np.linalg.norm(axis) < 1e-12:
+                check.fail("axis", "must be non-zero")
+        if kind_name in ("hinge", "ball") and kind.anchor is not None:
+            anchor = check.array("anchor", kind.anchor, (3,))
+        limited = range is not None
+        if limited:
+            if kind_name not in ("hinge", "slide"):
+                check.fail("range", f"limits hinges and slides only, not a {kind_name} joint")
+            range = check.array("range", range, (2,))
+            if range[0] > range[1]:
+                check.fail("range", f"must have lower <= upper, got {range.tolist()}")
+        numbers = {field: check.scalar(field, value, **param_bounds("joint_" + field))
+                   for field, value in dict(stiffness=stiffness, damping=damping, armature=armature,
+                                            frictionloss=frictionloss).items()}
+        if numbers["stiffness"] > 0 and kind_name not in ("hinge", "slide"):
+            check.fail("stiffness", f"springs act on hinges and slides only, not a {kind_name} joint")
+        if kind_name == "fixed" and any(numbers.values()):
+            check.fail("kind", "a fixed joint has no coordinate to damp, drive or spring")
+        self._joints.append(JointSpec(
+            name=name, kind=kind_name, child=child, parent=parent, axis=axis, anchor=anchor, limited=limited,
+            range=range if limited else np.zeros(2), ref=check.scalar("ref", ref),
+            springref=check.scalar("springref", springref), **numbers))
+        self._joint_args.append(_given_arguments(arguments, Scene.add_joint))
+        return index
+
+    def add_equality(self, kind, body_a, body_b=None, *, name: Optional[str] = None) -> int:
+        """Close a loop: constrain ``body_a`` to ``body_b`` (or the world) and return the closure's index.
+
+        Args:
+            kind: ``rb.Connect(anchor)`` (a world point at the built pose that
+                stays common to both bodies, a ball joint's constraint) or
+                ``rb.Weld()`` (``body_b`` keeps its built pose relative to ``body_a``).
+            body_a: () index of a body.
+            body_b: () index of another body, or None for the world.
+            name: used in messages; default ``"equality<i>"``.
+
+        Returns:
+            The closure's index.
+        """
+        arguments = dict(locals())
+        index = len(self._equalities)
+        name = name if name is not None else f"equality{index}"
+        check = _Fields(f"equality {index} ({name!r})")
+        if self.dim != 3:
+            check.fail("kind", "loop closures are 3D only for now")
+        if type(kind) not in EQUALITY_KINDS:
+            check.fail("kind", f"must be rb.Connect(anchor) or rb.Weld(), got {kind!r}")
+        body_a = self._body_index(check, "body_a", body_a, allow_world=False)
+        body_b = self._body_index(check, "body_b", body_b, allow_world=True)
+        if body_a == body_b:
+            check.fail("body_b", f"is body_a ({body_a}) itself; a closure joins two bodies")
+        anchor = check.array("anchor", kind.anchor, (3,)) if isinstance(kind, EQUALITY_KINDS_BY_NAME["connect"]) \
+            else None
+        self._equalities.append(EqualitySpec(name=name, kind=EQUALITY_KINDS[type(kind)], body_a=body_a,
+                                             body_b=body_b, anchor=anchor))
+        self._equality_args.append(_given_arguments(arguments, Scene.add_equality))
+        return index
+
+    def add_actuator(self, joint: int, kind: str = "motor", *, gear=1.0, kp=None, kv=None, gain=None, bias=None,
+                     ctrlrange=None, forcerange=None, name: Optional[str] = None) -> int:
+        """Drive a hinge or slide with an actuator and return its index (its place in ``controls``).
+
+        MuJoCo's actuators with a joint transmission: the actuator's force
+        p = gain·u + b0 + b1·l + b2·l̇ (l = gear·q, l̇ = gear·q̇, u the control
+        clamped to ``ctrlrange``), clamped to ``forcerange``, acts on the
+        joint as gear·p.
+
+        Args:
+            joint: index of a hinge or slide joint (from :meth:`add_joint`).
+            kind: ``"motor"`` (gain 1, no bias: u is a force or torque),
+                ``"position"`` (a servo: p = kp (u − l) − kv l̇), ``"velocity"``
+                (p = kv (u − l̇)) or ``"general"`` (``gain`` and ``bias`` given).
+            gear: () the transmission ratio.
+            kp: () the position servo's gain.
+            kv: () the velocity gain (a velocity actuator's, or a position servo's damping).
+            gain: () a general actuator's gain.
+            bias: (3,) a general actuator's bias terms (b0, b1, b2).
+            ctrlrange: (2,) control clamp, or None.
+            forcerange: (2,) force clamp, or None.
+            name: used in messages; default ``"actuator<i>"``.
+
+        Returns:
+            The actuator's index.
+        """
+        arguments = dict(locals())
+        index = len(self._actuators)
+        name = name if name is not None else f"actuator{index}"
+        check = _Fields(f"actuator {index} ({name!r})")
+        check_option("actuator kind", kind, ACTUATOR_KINDS)
+        if not isinstance(joint, (int, np.integer)) or isinstance(joint, bool) or not 0 <= joint < len(self._joints):
+            check.fail("joint", f"must be a joint index 0..{len(self._joints) - 1}, got {joint!r}")
+        given = {"kp": kp, "kv": kv, "gain": gain, "bias": bias}
+        allowed = {"motor": (), "position": ("kp", "kv"), "velocity": ("kv",), "general": ("gain", "bias")}[kind]
+        for field, value in given.items():
+            if value is not None and field not in allowed:
+                check.fail(field, f"does not apply to a {kind!r} actuator (it takes {', '.join(allowed) or 'none'})")
+        kp = check.scalar("kp", 0.0 if kp is None else kp, low=0.0)
+        kv = check.scalar("kv", 0.0 if kv is None else kv, low=0.0)
+        if kind == "position":
+            gain, bias = kp, np.array([0.0, -kp, -kv])
+        elif kind == "velocity":
+            gain, bias = kv, np.array([0.0, 0.0, -kv])
+        elif kind == "motor":
+            gain, bias = 1.0, np.zeros(3)
+        else:
+            gain = check.scalar("gain", 1.0 if gain is None else gain)
+            bias = check.array("bias", np.zeros(3) if bias is None else bias, (3,))
+        ranges = {}
+        for field, value in (("ctrlrange", ctrlrange), ("forcerange", forcerange)):
+            if value is not None:
+                value = check.array(field, value, (2,))
+                if value[0] > value[1]:
+                    check.fail(field, f"must have lower <= upper, got {value.tolist()}")
+            ranges[field] = value
+        self._actuators.append(ActuatorSpec(name=name, joint=int(joint), gear=check.scalar("gear", gear),
+                                            gain=float(gain), bias=np.asarray(bias, float),
+                                            ctrl_range=ranges["ctrlrange"], force_range=ranges["forcerange"]))
+        self._actuator_args.append(_given_arguments(arguments, Scene.add_actuator))
+        return index
+
+    def build(self, dt: float, integrator: Optional[str] = None, orientation: Optional[str] = None,
               contact: Contact = None, substeps: Optional[int] = None, dtype=None, *,
               broadphase: Optional[str] = None, broadphase_capacity: Optional[int] = None,
-              contact_margin: float = 0.01, bounce_threshold: float = 0.5, **deprecated):
+              contact_margin: float = 0.01, bounce_threshold: float = 0.5, joint_friction: str = "exact",
+              **deprecated):
         """Validate the options and return ``(model, params, state)``.
 
         Args:
             dt: time step of one ``step`` call (s), > 0.
-            integrator: one of ``"euler"``, ``"semi_implicit"``, ``"implicit_gyro"``, ``"rk4"``,
-                ``"rk4_body"`` (see :mod:`jaxrb.physics.integrators`).
+            integrator: one of ``"euler"``, ``"semi_implicit"`` (the default without
+                joints), ``"implicit_gyro"``, ``"rk4"``, ``"rk4_body"`` (see
+                :mod:`jaxrb.physics.integrators`). A scene with joints takes
+                ``"midpoint"`` (the default: Coriolis terms half implicit, which
+                keeps a double pendulum's energy), ``"semi_implicit"``
+                (MuJoCo's Euler), ``"implicit"`` (velocity and position terms
+                implicit: stable for stiff chains at large steps, and
+                dissipative) or ``"rk4"`` (MuJoCo's RK4; no contact, loop
+                closures or exact joint friction); see
+                :mod:`jaxrb.physics.joints.step`.
             orientation: ``"first_order"`` or ``"exp_map"`` (default). The RK4s integrate
                 the quaternion ODE themselves, so they take no orientation option.
             contact: the contact model and its options: ``rb.Impulse(...)``,
@@ -375,6 +624,11 @@ class Scene:
             bounce_threshold: approach speed (m/s) below which a contact rests
                 rather than bounces, and the band of ``RESTING`` status
                 (``Params.bounce_threshold``).
+            joint_friction: how joints' Coulomb friction (``frictionloss``) is
+                solved: ``"exact"`` (bounded rows in the constraint passes, as
+                MuJoCo's) or ``"smooth"`` (μ·q̇/√(q̇² + v²), v =
+                ``Params.joint_friction_velocity``, for gradients through
+                stick–slip).
             **deprecated: the contact models' options as flat keywords
                 (``iterations=8``, ``penalty_stiffness=2e4``, ...): still
                 taken for one release, with a DeprecationWarning
@@ -388,10 +642,39 @@ class Scene:
         contact, model_options = flat_options(contact, deprecated)
         return self._build(dt, integrator, orientation, contact, substeps, dtype, broadphase=broadphase,
                            broadphase_capacity=broadphase_capacity, contact_margin=contact_margin,
-                           bounce_threshold=bounce_threshold, **model_options)
+                           bounce_threshold=bounce_threshold, joint_friction=joint_friction, **model_options)
+
+    def _collision_filter(self, tree) -> dict:
+        """``build_pair_groups``' exclusions: the user's, and by MuJoCo's rule those of the joint tree."""
+        excluded, static = collision_filter(tree) if tree is not None else (frozenset(), frozenset())
+        return dict(excluded=excluded | frozenset(self._excluded_pairs), static_bodies=static,
+                    excluded_planes=frozenset(self._excluded_planes))
+
+    def _joint_tree(self, integrator, joint_friction):
+        """(tree, arrays, qpos0) of the scene's joints, or Nones without joints (see ``build``)."""
+        if not (self._joints or self._equalities or self._actuators):
+            return None, None, None
+        check_option("joint_friction", joint_friction, JOINT_FRICTIONS)
+        if integrator not in JOINT_INTEGRATORS:
+            raise ValueError(f"scene.build: a scene with joints steps with integrator "
+                             f"{', '.join(map(repr, JOINT_INTEGRATORS))}, got {integrator!r}")
+        bodies = self._bodies
+        origins = [b.pos - _rotation_matrix(b.quat) @ b.com for b in bodies]
+        tree, arrays, qpos0 = build_tree([b.name for b in bodies], origins, [b.quat for b in bodies],
+                                         self._joints, self._equalities, self._actuators, joint_friction)
+        for index, body in enumerate(bodies):
+            if tree.parent[index] >= 0 or not tree.body_joints[index] or \
+                    tree.joint_kind[tree.body_joints[index][0]] != "free":
+                if np.any(body.vel != 0.0) or np.any(body.angvel != 0.0):
+                    raise ValueError(f"body {index} ({body.name!r}): fields 'vel' and 'angvel' must be zero on a "
+                                     "body with joints; set joint velocities with rb.joints.set_qpos_qvel")
+        if integrator == "rk4" and (tree.equality_kind or (tree.friction_dofs and joint_friction == "exact")):
+            raise ValueError("scene.build: integrator 'rk4' takes no loop closures and no exact joint friction "
+                             "(use joint_friction='smooth', or the 'semi_implicit' integrator)")
+        return tree, arrays, qpos0
 
     def _build(self, dt, integrator, orientation, contact, substeps, dtype, *, solver, iterations,
-               relax_iterations, broadphase, broadphase_capacity, contact_margin, bounce_threshold,
+               relax_iterations, broadphase, broadphase_capacity, contact_margin, bounce_threshold, joint_friction,
                contact_hertz, contact_damping_ratio, max_push_velocity, penalty_stiffness, penalty_damping,
                penalty_frequency, penalty_damping_ratio, penalty_width, penalty_friction, friction_velocity,
                impulse_smoothing, time_of_impact):
@@ -400,7 +683,14 @@ class Scene:
         if not self._bodies:
             raise ValueError("scene.build: the scene has no bodies; add one with add_body")
         dt = check.scalar("dt", dt, **param_bounds("dt"))
+        jointed = bool(self._joints or self._equalities or self._actuators)
+        if integrator is None:
+            integrator = "midpoint" if jointed else "semi_implicit"
         check_option("integrator", integrator, INTEGRATORS)
+        if integrator in JOINT_ONLY_INTEGRATORS and not jointed:
+            raise ValueError(f"scene.build: integrator {integrator!r} is for scenes with joints; free bodies step "
+                             "with 'semi_implicit' (the default), 'implicit_gyro', 'euler', 'rk4' or 'rk4_body'")
+        tree, joint_arrays, qpos0 = self._joint_tree(integrator, joint_friction)
         if orientation is not None and integrator in QUATERNION_ODE_INTEGRATORS:
             raise ValueError(f"scene.build: 'orientation' does not apply to integrator {integrator!r}, "
                              "which integrates the quaternion ODE itself; leave it unset")
@@ -421,8 +711,9 @@ class Scene:
         pair_groups, skipped = build_pair_groups(
             [b.shape for b in self._bodies], [b.collision_filter for b in self._bodies],
             tuple((tuple(p.normal.tolist()), p.offset) for p in self._planes),
-            [p.collision_filter for p in self._planes], self.dim, broadphase, broadphase_capacity)
-        velocity_first = integrator in ("semi_implicit", "implicit_gyro")
+            [p.collision_filter for p in self._planes], self.dim, broadphase, broadphase_capacity,
+            **self._collision_filter(tree))
+        velocity_first = integrator in ("semi_implicit", "implicit_gyro", "midpoint", "implicit")
         if contact is None and pair_groups and not velocity_first:
             # Defaulting to "none" here let a box fall through the floor (z = -19 m
             # after 2 s) with no word: say so, and let the user choose.
@@ -459,7 +750,8 @@ class Scene:
             relax_iterations=int(relax_iterations), penalty_smooth=penalty_width is not None,
             penalty_damping_from_restitution=penalty_damping is None and penalty_damping_ratio is None,
             penalty_friction=penalty_friction, time_of_impact=bool(time_of_impact),
-            skipped_pairs=skipped)
+            skipped_pairs=skipped, joints=tree,
+            shape_frames=tuple(b.shape_frame for b in bodies) if any(b.shape_frame for b in bodies) else ())
         substep = dt / int(substeps)
         mean_mass = float(np.mean([b.mass for b in bodies]))
         if penalty_frequency is None:
@@ -513,4 +805,32 @@ class Scene:
         if dim == 3 and integrator == "rk4_body":
             state = state.replace(body_momentum=body_frame_momentum(params, state.quat, state.angvel),
                                   momentum_residual=jnp.zeros((num, 3), dtype=dtype))
+        if tree is not None:
+            params, state = self._joint_params_state(model, params, state, joint_arrays, qpos0, substep, dtype)
         return model, params, state
+
+    def _joint_params_state(self, model, params, state, arrays, qpos0, substep, dtype):
+        """Params and State of a scene with joints: its joints' fields, and qpos/qvel with their read-outs."""
+        tree = model.joints
+        cap = LIMIT_HERTZ_CAP["rk4" if model.integrator == "rk4" else "euler"]
+        as_array = lambda value: jnp.asarray(value, dtype=dtype)
+        params = params.replace(**{name: as_array(value) for name, value in arrays.items()},
+                                joint_friction_velocity=as_array(0.01), limit_hertz=as_array(cap / substep),
+                                limit_damping_ratio=as_array(1.0), equality_hertz=as_array(0.25 / substep),
+                                equality_damping_ratio=as_array(1.0))
+        qvel, moving = np.zeros(tree.nv), set()
+        for index, body in enumerate(self._bodies):  # free roots keep their velocities, in MuJoCo's layout
+            joints = tree.body_joints[index]
+            if tree.parent[index] < 0 and joints and tree.joint_kind[joints[0]] == "free":
+                rotation = _rotation_matrix(body.quat)
+                start = tree.dof_adr[joints[0]]
+                qvel[start:start + 3] = body.vel - np.cross(body.angvel, rotation @ body.com)
+                qvel[start + 3:start + 6] = rotation.T @ body.angvel
+                if np.any(qvel[start:start + 6]):
+                    moving.add(index)
+        state = state.replace(qpos=as_array(qpos0), qvel=as_array(qvel))
+        # The bodies' poses and velocities are the read-outs of qpos0 and qvel already (the built pose),
+        # unless a moving free root carries children: their velocities follow it.
+        if any(tree.parent[body] in moving for body in range(len(self._bodies))):
+            state = jax.jit(read_out, static_argnums=0)(model, params, state, state.qpos, state.qvel)
+        return params, state

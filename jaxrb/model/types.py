@@ -14,11 +14,14 @@ import jax
 import numpy as np
 
 from jaxrb.model.struct import pytree_dataclass
+from jaxrb.model.joints import JointTree
 from jaxrb.model.shapes import ShapeError, check_inertia
 
 Array = jax.Array
 
-INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body")
+INTEGRATORS = ("euler", "semi_implicit", "implicit_gyro", "rk4", "rk4_body", "midpoint", "implicit")
+#: Integrators of scenes with joints only (:data:`jaxrb.physics.joints.step.JOINT_INTEGRATORS`).
+JOINT_ONLY_INTEGRATORS = ("midpoint", "implicit")
 #: Integrators that integrate the quaternion ODE themselves (no ``orientation`` option).
 QUATERNION_ODE_INTEGRATORS = ("rk4", "rk4_body")
 ORIENTATIONS = ("first_order", "exp_map")
@@ -85,6 +88,12 @@ class Model:
             kinds in :data:`jaxrb.physics.contact.toi.TOI_KINDS` at their time inside
             the substep (see :mod:`jaxrb.physics.contact.toi`).
         skipped_pairs: pair kinds present in the scene that no kernel handles.
+        joints: the scene's :class:`~jaxrb.model.joints.JointTree`, or None
+            for a scene of free bodies (its step has no joint code).
+        shape_frames: per body, None where the shape's frame is the body's,
+            else the shape's pose in the body frame as ``((x, y, z), (w, x,
+            y, z))`` (a MuJoCo geom placed in its body); empty when every
+            shape sits at its body's frame.
     """
 
     dim: int
@@ -106,6 +115,13 @@ class Model:
     penalty_friction: str = "spring"
     time_of_impact: bool = False
     skipped_pairs: tuple = ()
+    joints: Optional[JointTree] = None
+    shape_frames: tuple = ()
+
+    @property
+    def num_actuators(self) -> int:
+        """Length of the ``controls`` a step takes (0 without actuators)."""
+        return 0 if self.joints is None else self.joints.num_actuators
 
     @property
     def num_contacts(self) -> int:
@@ -145,6 +161,8 @@ class Model:
                       f"{self.penalty_friction} friction")
             stages.insert(0, f"collision ({kinds}; {self.num_contacts} contact slots)")
             stages.append(f"contact {self.contact} ({detail})")
+        if self.joints is not None:
+            stages.insert(1 if self.contact != "none" else 0, self.joints.summary())
         if self.skipped_pairs:
             stages.append("no kernel for: " + ", ".join(self.skipped_pairs))
         bodies = f"{self.num_bodies} {'body' if self.num_bodies == 1 else 'bodies'}"
@@ -155,6 +173,10 @@ class Model:
 @pytree_dataclass
 class Params:
     """Physical parameters: differentiable and vmappable.
+
+    The fields from ``parent_offset`` on are the joints' and are None in a
+    scene without joints (nj joints, nv dofs, na actuators, ne loop closures;
+    the frames are :mod:`jaxrb.model.joints`').
 
     Attributes:
         mass: (n,) body masses.
@@ -204,6 +226,42 @@ class Params:
             reverse mode transposes the inverse once, not once per step; a
             step called on its own inverts ``inertia`` itself. Neither fitted
             nor swept (:data:`DERIVED_PARAMS`).
+        parent_offset: (n, 3) each body frame's origin in its parent's frame
+            at zero joint displacement (MuJoCo's ``body_pos``); a free root's
+            is unused.
+        parent_rotation: (n, 4) the body frame's orientation in its parent's
+            frame, (w, x, y, z) (``body_quat``).
+        joint_pos: (nj, 3) joint anchor in the child body's frame (``jnt_pos``).
+        joint_axis: (nj, 3) hinge or slide axis in the child body's frame
+            (``jnt_axis``; normalised where used).
+        joint_ref: (nj,) hinge and slide coordinate at the reference pose (``ref``).
+        joint_range: (nj, 2) lower and upper limit of the coordinate, used
+            where the Model marks the joint limited.
+        joint_stiffness: (nj,) spring (N m/rad or N/m) towards ``joint_springref``.
+        joint_springref: (nj,) the spring's rest coordinate.
+        joint_damping: (nv,) viscous damping per dof (N m s/rad or N s/m),
+            integrated implicitly.
+        joint_armature: (nv,) reflected rotor inertia added to the mass
+            matrix's diagonal (kg m² or kg).
+        joint_frictionloss: (nv,) Coulomb friction torque or force bound.
+        joint_friction_velocity: () velocity scale of the smooth Coulomb law
+            μ·q̇/√(q̇² + v²) (rad/s or m/s; the ``smooth`` joint friction).
+        limit_hertz: () stiffness of the joint limits, an implicit
+            spring-damper k = m_jj (2π f)² on the dof's own inertia m_jj.
+        limit_damping_ratio: () damping ratio of that spring-damper.
+        equality_hertz: () stiffness of the loop closures' soft correction (Hz).
+        equality_damping_ratio: () its damping ratio.
+        equality_anchor_a: (ne, 3) the closure's point in body A's frame
+            (connect), or B's frame origin in A's frame (weld).
+        equality_anchor_b: (ne, 3) the same point in body B's frame (world
+            frame where B is the world).
+        equality_rotation: (ne, 4) weld: B's orientation relative to A's.
+        actuator_gear: (na,) transmission: the joint feels gear × force.
+        actuator_gain: (na,) force per unit control.
+        actuator_bias: (na, 3) force b0 + b1·length + b2·velocity
+            (length = gear·q, velocity = gear·q̇).
+        ctrl_range: (na, 2) control clamp, where the Model marks it limited.
+        force_range: (na, 2) force clamp, where the Model marks it limited.
     """
 
     mass: Array
@@ -231,6 +289,30 @@ class Params:
     impulse_smoothing: Array
     shape_scale: Array
     inv_inertia: Optional[Array] = None
+    parent_offset: Optional[Array] = None
+    parent_rotation: Optional[Array] = None
+    joint_pos: Optional[Array] = None
+    joint_axis: Optional[Array] = None
+    joint_ref: Optional[Array] = None
+    joint_range: Optional[Array] = None
+    joint_stiffness: Optional[Array] = None
+    joint_springref: Optional[Array] = None
+    joint_damping: Optional[Array] = None
+    joint_armature: Optional[Array] = None
+    joint_frictionloss: Optional[Array] = None
+    joint_friction_velocity: Optional[Array] = None
+    limit_hertz: Optional[Array] = None
+    limit_damping_ratio: Optional[Array] = None
+    equality_hertz: Optional[Array] = None
+    equality_damping_ratio: Optional[Array] = None
+    equality_anchor_a: Optional[Array] = None
+    equality_anchor_b: Optional[Array] = None
+    equality_rotation: Optional[Array] = None
+    actuator_gear: Optional[Array] = None
+    actuator_gain: Optional[Array] = None
+    actuator_bias: Optional[Array] = None
+    ctrl_range: Optional[Array] = None
+    force_range: Optional[Array] = None
 
     def replace(self, **changes) -> "Params":
         """A copy with some fields replaced, each checked as ``Scene`` checks it.
@@ -294,6 +376,11 @@ PARAM_BOUNDS = {
     "penalty_damping": (0.0, None, False), "penalty_width": (0.0, None, True),
     "friction_velocity": (0.0, None, True), "impulse_smoothing": (0.0, None, False),
     "shape_scale": (0.0, None, True),
+    "joint_stiffness": (0.0, None, False), "joint_damping": (0.0, None, False),
+    "joint_armature": (0.0, None, False), "joint_frictionloss": (0.0, None, False),
+    "joint_friction_velocity": (0.0, None, True), "limit_hertz": (0.0, None, True),
+    "limit_damping_ratio": (0.0, None, False), "equality_hertz": (0.0, None, True),
+    "equality_damping_ratio": (0.0, None, False),
 }
 
 
@@ -375,6 +462,12 @@ class State:
         momentum_residual: (n, 3) with ``body_momentum``: the low part of M,
             the rounding of each step's update carried to the next step
             (compensated summation), of the order of one ulp of M.
+        qpos: (nq,) with joints (else ``None``): the joint coordinates in
+            MuJoCo's layout (:mod:`jaxrb.model.joints`). In a scene with
+            joints these, with ``qvel``, are what the step advances; ``pos``,
+            ``quat``, ``vel`` and ``angvel`` are each step's read-outs of
+            them (set both with :func:`jaxrb.joints.set_qpos_qvel`).
+        qvel: (nv,) with joints: the joint velocities.
     """
 
     pos: Array
@@ -388,6 +481,8 @@ class State:
     overflow: Optional[Array] = None
     body_momentum: Optional[Array] = None
     momentum_residual: Optional[Array] = None
+    qpos: Optional[Array] = None
+    qvel: Optional[Array] = None
 
 
 @pytree_dataclass

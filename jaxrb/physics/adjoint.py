@@ -31,9 +31,11 @@ def supports(model: Model) -> bool:
         model: a Model from ``Scene.build``.
 
     Returns:
-        True for 3D semi-implicit models without damping that are free bodies
-        or bodies against planes with penalty contact and spring friction.
+        True for 3D semi-implicit models without damping or joints that are
+        free bodies or bodies against planes with penalty contact and spring friction.
     """
+    if model.joints is not None:
+        return False
     return free_body_adjoint.supports(model) or plane_penalty_adjoint.supports(model)
 
 

@@ -67,7 +67,7 @@ def supports(model: Model) -> bool:
         'Layout'.)
     """
     return (model.dim == 3 and model.contact == "penalty" and model.integrator == "semi_implicit"
-            and model.num_contacts > 0
+            and model.num_contacts > 0 and model.joints is None and not model.shape_frames
             and all(group.b_is_plane and group.kind in PLANE_KINDS for group in model.pair_groups))
 
 

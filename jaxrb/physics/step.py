@@ -7,6 +7,7 @@ from typing import Callable, Optional, Union
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxrb.physics import adjoint as hand_written
 from jaxrb.physics.collision.pairs import detect
@@ -16,12 +17,13 @@ from jaxrb.physics.contact.common import carried_impulses, pad
 from jaxrb.physics.contact.penalty import penalty_wrench
 from jaxrb.physics.dynamics import net_wrench, with_inverse_inertia
 from jaxrb.physics.integrators import INTEGRATORS, PHASES
+from jaxrb.physics.joints.step import make_joint_step
 from jaxrb.physics.plane_penalty import PlanePenalty, supports as plane_penalty_supports
 from jaxrb.model.types import Model, Params, State, Wrench
 
 
 def make_step(model: Model) -> Callable:
-    """Return ``step(state, params, applied=None) -> state`` for ``model``.
+    """Return ``step(state, params, applied=None, controls=None) -> state`` for ``model``.
 
     The step is pure and written for one world: jit it, vmap it over states
     (``in_axes=(0, None)``) or params (``in_axes=(None, 0)``), scan it and
@@ -34,23 +36,30 @@ def make_step(model: Model) -> Callable:
     State is split into x, y, z parts on entry and joined on exit, and every
     stage between works on (n,) arrays, which XLA's CPU backend vectorises
     (1.8× the batched throughput of :func:`generic_step`'s (n, 3) form). The
-    same step serves ``rb.rollout`` and a user's own loop.
+    same step serves ``rb.rollout`` and a user's own loop. A scene with
+    joints steps its joint coordinates (:mod:`jaxrb.physics.joints.step`);
+    ``controls`` (num_actuators,) drive its actuators, in the model's
+    actuator order.
 
     Args:
         model: the static Model from ``Scene.build``; it decides what is compiled.
 
     Returns:
-        The pure function ``step(state, params, applied=None) -> State``:
+        The pure function ``step(state, params, applied=None, controls=None) -> State``:
         ``state`` a State (``pos`` (n, dim), ...), ``params`` the Params,
-        ``applied`` an optional Wrench (force (n, dim), torque (n, 3) or (n,)).
+        ``applied`` an optional Wrench (force (n, dim), torque (n, 3) or (n,)),
+        ``controls`` an optional (num_actuators,) array (None: zero).
         It advances ``state.time`` by ``params.dt``; ``step.model`` is ``model``.
     """
+    if model.joints is not None:
+        return make_joint_step(model)
     if not plane_penalty_supports(model):
         return generic_step(model)
     components = PlanePenalty(model)
 
     @full_precision  # float32 products in float32 on GPUs too (jaxrb.compile)
-    def step(state: State, params: Params, applied: Optional[Wrench] = None) -> State:
+    def step(state: State, params: Params, applied: Optional[Wrench] = None, controls=None) -> State:
+        _no_controls(controls)
         carry = components.step(components.to_carry(state, params), params, applied)
         return components.from_carry(carry, state, params)
 
@@ -80,13 +89,21 @@ def generic_step(model: Model) -> Callable:
         run_substeps = _impulse_substeps(model)
 
     @full_precision  # float32 products in float32 on GPUs too (jaxrb.compile)
-    def step(state: State, params: Params, applied: Optional[Wrench] = None) -> State:
+    def step(state: State, params: Params, applied: Optional[Wrench] = None, controls=None) -> State:
+        _no_controls(controls)
         force, torque = net_wrench(model, params, applied)
         state = run_substeps(state, params, force, torque, params.dt / substeps)
         return state.replace(time=state.time + params.dt)
 
     step.model = model
     return step
+
+
+def _no_controls(controls) -> None:
+    """A scene without actuators takes no controls: say so rather than ignore them."""
+    if controls is not None and np.size(controls):
+        raise ValueError(f"step: this model has no actuators, so 'controls' must be None, got shape "
+                         f"{np.shape(controls)}")
 
 
 # Free-body substeps are unrolled in Python so XLA fuses across them; the impulse
@@ -233,7 +250,7 @@ def _check_adjoint(model: Optional[Model], checkpoint) -> None:
 
 def rollout(step: Callable, state: State, params: Params, num_steps: int, *, every: int = 1,
             checkpoint: Union[bool, int] = False, applied: Optional[Wrench] = None,
-            adjoint: bool = False) -> State:
+            adjoint: bool = False, controls=None) -> State:
     """Run ``step`` for ``num_steps`` steps with ``lax.scan`` and stack the states.
 
     Args:
@@ -253,6 +270,8 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
             ``every`` > 1.
         applied: optional Wrench with a leading time axis (num_steps, ...)
             applied one slice per step.
+        controls: optional (num_steps, num_actuators) actuator inputs, one
+            row per step (a scene with actuators; None: zero).
         adjoint: reverse mode by :mod:`jaxrb.physics.adjoint`'s hand-written adjoint
             instead of autodiff: for 3D semi-implicit models without damping
             (``jaxrb.physics.adjoint.supports``), free bodies (a gradient 2-4×
@@ -282,11 +301,17 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
         params = with_inverse_inertia(params, model.dim)
     if adjoint:
         return hand_written.rollout(step, state, params, num_steps, every, applied)
-    if applied is not None:
-        applied = jax.tree_util.tree_map(
-            lambda a: a.reshape((num_saved, every) + a.shape[1:]), applied)
+    inputs = (applied, controls)
+    if controls is not None and np.shape(controls)[0] != num_steps:
+        raise ValueError(f"rollout: 'controls' must have one row per step ({num_steps}), got shape "
+                         f"{np.shape(controls)}")
+    inputs = jax.tree_util.tree_map(lambda a: a.reshape((num_saved, every) + a.shape[1:]), inputs)
 
-    advance_one = lambda current, applied_now: step(current, params, applied_now)
+    def advance_one(current, inputs_now):
+        applied_now, controls_now = inputs_now
+        if controls_now is None:  # a step from before controls took (state, params, applied) only
+            return step(current, params, applied_now)
+        return step(current, params, applied_now, controls_now)
     # Reverse mode recomputes each step from its carried state instead of
     # storing the step's intermediates (scalars per body component, a hundred
     # or more a step, each its own buffer written in the forward loop and read
@@ -294,26 +319,24 @@ def rollout(step: Callable, state: State, params: Params, num_steps: int, *, eve
     # forward-only program is unchanged (docs/design.md, 'Reverse mode').
     advance_one = jax.checkpoint(advance_one, prevent_cse=False)
 
-    def advance(current, applied_chunk):
-        def one(inner, applied_now):
-            return advance_one(inner, applied_now), None
+    def advance(current, inputs_chunk):
+        def one(inner, inputs_now):
+            return advance_one(inner, inputs_now), None
 
-        current, _ = jax.lax.scan(one, current, applied_chunk, length=every)
+        current, _ = jax.lax.scan(one, current, inputs_chunk, length=every)
         return current, current
 
     if not checkpoint:
-        _, states = jax.lax.scan(advance, state, applied, length=num_saved)
+        _, states = jax.lax.scan(advance, state, inputs, length=num_saved)
         return states
 
     segment = _segment_length(num_saved, checkpoint)
     num_segments = num_saved // segment
-    if applied is not None:
-        applied = jax.tree_util.tree_map(
-            lambda a: a.reshape((num_segments, segment) + a.shape[1:]), applied)
+    inputs = jax.tree_util.tree_map(lambda a: a.reshape((num_segments, segment) + a.shape[1:]), inputs)
 
     @jax.checkpoint
-    def run_segment(current, applied_segment):
-        return jax.lax.scan(advance, current, applied_segment, length=segment)
+    def run_segment(current, inputs_segment):
+        return jax.lax.scan(advance, current, inputs_segment, length=segment)
 
-    _, states = jax.lax.scan(run_segment, state, applied, length=num_segments)
+    _, states = jax.lax.scan(run_segment, state, inputs, length=num_segments)
     return jax.tree_util.tree_map(lambda a: a.reshape((num_saved,) + a.shape[2:]), states)

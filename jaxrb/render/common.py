@@ -10,7 +10,7 @@ from typing import Optional
 import jax
 import numpy as np
 
-from jaxrb.physics.collision.pairs import detect
+from jaxrb.physics.collision.pairs import detect, shape_frame_arrays
 from jaxrb.compile import jit
 from jaxrb.model.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
 
@@ -191,6 +191,10 @@ class _Frames:
         self.rotation = _rotation_matrices(model, states)
         offset = np.asarray(params.com_offset, dtype=np.float64)
         self.origin = self.com - np.einsum("fnij,nj->fni", self.rotation, offset)
+        if model.shape_frames:  # shapes placed in their bodies: the shape's own frame
+            shift, turn = (np.asarray(a, np.float64) for a in shape_frame_arrays(model, np.float64))
+            self.origin = self.origin + np.einsum("fnij,nj->fni", self.rotation, shift)
+            self.rotation = self.rotation @ turn
         count = self.com.shape[0]
         self.time = np.broadcast_to(np.asarray(states.time, dtype=np.float64), (count,))
         self.contacts = None

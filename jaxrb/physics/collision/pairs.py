@@ -137,7 +137,8 @@ def _kernel_slots(kind, geom_a, geom_b, dim):
     return out.dist.shape[0]
 
 
-def build_pair_groups(shapes, body_filters, planes, plane_filters, dim, broadphase, capacity=None):
+def build_pair_groups(shapes, body_filters, planes, plane_filters, dim, broadphase, capacity=None,
+                      excluded=frozenset(), static_bodies=frozenset(), excluded_planes=frozenset()):
     """The static pair table.
 
     Args:
@@ -150,6 +151,10 @@ def build_pair_groups(shapes, body_filters, planes, plane_filters, dim, broadpha
             always run all their pairs).
         capacity: pairs per body–body group the ``spheres`` broadphase keeps;
             default 4 per body of the scene.
+        excluded: (a, b) body pairs (a < b) that never collide (joints: a
+            body and its parent, bodies welded together).
+        static_bodies: bodies fixed to the world, which planes do not touch.
+        excluded_planes: (body, plane) pairs that never collide.
 
     Returns:
         (tuple of PairGroup, tuple of skipped pair kinds).
@@ -168,10 +173,11 @@ def build_pair_groups(shapes, body_filters, planes, plane_filters, dim, broadpha
         if geom is None:
             continue
         for p, (normal, offset) in enumerate(planes):
-            if _can_collide(body_filters[a], plane_filters[p]):
+            if a not in static_bodies and (a, p) not in excluded_planes \
+                    and _can_collide(body_filters[a], plane_filters[p]):
                 add(f"{geom[0]}_plane", a, p, True, tuple(np.shape(x) for x in geom[1]))
         for b in range(a + 1, len(geoms)):
-            if geoms[b] is None or not _can_collide(body_filters[a], body_filters[b]):
+            if geoms[b] is None or (a, b) in excluded or not _can_collide(body_filters[a], body_filters[b]):
                 continue
             kind, swap = pair_kind(geom[0], geoms[b][0])
             first, second = (b, a) if swap else (a, b)
@@ -204,7 +210,33 @@ def shape_poses(model: Model, params: Params, state: State):
     else:
         rotation = rot2(state.angle)
         origin = state.pos - jnp.einsum("nij,nj->ni", rotation, params.com_offset)
+    if model.shape_frames:  # shapes placed in their bodies (3D): body frame, then the shape's pose in it
+        offset, turn = shape_frame_arrays(model, origin.dtype)
+        origin = origin + jnp.einsum("nij,nj->ni", rotation, offset)
+        rotation = rotation @ turn
     return origin, rotation
+
+
+def shape_frame_arrays(model: Model, dtype):
+    """Each shape's pose in its body frame as arrays: offsets (n, 3) and rotations (n, 3, 3) (identity: None)."""
+    offsets = np.zeros((model.num_bodies, 3))
+    turns = np.tile(np.eye(3), (model.num_bodies, 1, 1))
+    for body, frame in enumerate(model.shape_frames):
+        if frame is not None:
+            offsets[body] = frame[0]
+            w, x, y, z = frame[1]
+            turns[body] = [[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                           [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                           [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]]
+    return jnp.asarray(offsets, dtype), jnp.asarray(turns, dtype)
+
+
+def shape_centres(model: Model, params: Params):
+    """(n, dim) each shape's origin from its body's centre of mass, body frame (where a ball's centre is)."""
+    centre = -params.com_offset
+    if model.shape_frames:
+        centre = centre + shape_frame_arrays(model, centre.dtype)[0]
+    return centre
 
 
 def round_sides(model: Model):

@@ -247,14 +247,58 @@ def _friction_impulses(model, prep, speeds, old_friction, normal) -> list:
     return [clamped[..., k] for k in range(len(friction))]
 
 
-def soft_parameters(params: Params, h):
-    """(bias rate, mass scale, impulse scale, max push) of the soft contact constraint."""
-    omega = 2.0 * jnp.pi * jnp.minimum(params.contact_hertz, 0.25 / h)
-    zeta = params.contact_damping_ratio
-    a1 = 2.0 * zeta + h * omega
+def soft_coefficients(hertz, damping_ratio, h, cap=0.25):
+    """(bias rate, mass scale, impulse scale) of a soft constraint: a spring-damper taken implicitly.
+
+    The stiffness is capped at a quarter of the step rate, the stiffest the
+    few passes resolve (see the module docs). Contacts, the joints' loop
+    closures and their limits' solver rows all use it.
+
+    Args:
+        hertz: () the spring's frequency (Hz).
+        damping_ratio: () its damping ratio.
+        h: () the (sub)step.
+        cap: the highest frequency taken, as a fraction of the step rate.
+
+    Returns:
+        (bias_rate, mass_scale, impulse_scale), each (): an update is
+        Δλ = −mass_scale·m_eff·(v + bias_rate·C) − impulse_scale·λ for a
+        constraint C with speed v and accumulated impulse λ.
+    """
+    omega = 2.0 * jnp.pi * jnp.minimum(hertz, cap / h)
+    a1 = 2.0 * damping_ratio + h * omega
     a2 = h * omega * a1
     a3 = 1.0 / (1.0 + a2)
-    return omega / a1, a2 * a3, a3, params.max_push_velocity
+    return omega / a1, a2 * a3, a3
+
+
+def soft_parameters(params: Params, h):
+    """(bias rate, mass scale, impulse scale, max push) of the soft contact constraint."""
+    return (*soft_coefficients(params.contact_hertz, params.contact_damping_ratio, h), params.max_push_velocity)
+
+
+def bounce_impulse(vn, old, approach, restitution, normal_mass, active, threshold):
+    """A contact's normal impulse after its restitution update: outgoing speed −e·v_approach.
+
+    Applies where the contact is active, approached faster than ``threshold``
+    and pushes (``old`` > 0); elsewhere ``old`` is returned. Any shapes, all alike.
+
+    Args:
+        vn: normal speeds now; old: accumulated normal impulses; approach:
+            normal speeds after the velocity phase (negative approaching);
+            restitution, normal_mass, active: the rows'; threshold: () m/s.
+
+    Returns:
+        The new accumulated normal impulses.
+    """
+    # With impulse_smoothing every closing contact pushes a little, so it
+    # bounces up to a substep early (apex +2 mm on the bounce bench). Gating
+    # on the unsmoothed impulse instead was tried: the apex was right but
+    # the gradient jumped (std of dA/dh0 41 against 2e-3), so the knob keeps
+    # this bias.
+    bounce = active & (approach < -threshold) & (old > 0.0)
+    delta = -normal_mass * (vn + restitution * approach)
+    return jnp.where(bounce, jnp.maximum(old + delta, 0.0), old)
 
 
 def restitution_pass(model: Model, prep: Prepared, vel, angvel, impulses, threshold):
@@ -263,14 +307,7 @@ def restitution_pass(model: Model, prep: Prepared, vel, angvel, impulses, thresh
     impulses: as in :func:`solve_pass`; returns (vel, angvel, impulses).
     """
     def new_normal(vn, old, row, threshold):
-        # With impulse_smoothing every closing contact pushes a little, so it
-        # bounces up to a substep early (apex +2 mm on the bounce bench). Gating
-        # on the unsmoothed impulse instead was tried: the apex was right but
-        # the gradient jumped (std of dA/dh0 41 against 2e-3), so the knob keeps
-        # this bias.
-        bounce = row.active & (row.approach < -threshold) & (old > 0.0)
-        delta = -row.normal_mass * (vn + row.restitution * row.approach)
-        return jnp.where(bounce, jnp.maximum(old + delta, 0.0), old)
+        return bounce_impulse(vn, old, row.approach, row.restitution, row.normal_mass, row.active, threshold)
 
     if model.solver == "jacobi":
         normal = new_normal(row_speeds(model, prep, vel, angvel, count=1)[0], impulses[0], prep, threshold)

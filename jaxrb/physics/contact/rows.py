@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from jaxrb.math import quaternion as quat_ops
 from jaxrb.model.struct import pytree_dataclass
-from jaxrb.physics.collision.pairs import round_sides, row_summer, row_taker
+from jaxrb.physics.collision.pairs import round_sides, row_summer, row_taker, shape_centres
 from jaxrb.physics.contact.common import apply_inverse_inertia, moment, pad, tangent_basis, world_inverse_inertia
 from jaxrb.math.vector import rotate2
 from jaxrb.model.types import Array, Model, Params, State
@@ -204,7 +204,7 @@ def prepare(model: Model, params: Params, state: State, contacts) -> Prepared:
     rotation_a, rotation_b = _row_rotations(model, state, take)
     normal_mass = masses[0]
     round_a, round_b = (jnp.asarray(side)[:, None] for side in round_sides(model))
-    centre = -params.com_offset  # shape centre from the centre of mass, body frame
+    centre = shape_centres(model, params)  # shape centre from the centre of mass, body frame
     anchor_a = jnp.where(round_a, take(centre, 0), _to_body(model, rotation_a, arm_a))
     anchor_b = jnp.where(round_b, take(centre, 1), _to_body(model, rotation_b, arm_b))
     return Prepared(

@@ -1,0 +1,261 @@
+"""The step of a scene with joints: joint coordinates advanced as MuJoCo's Euler or RK4 integrator does.
+
+One call of ``step(state, params, applied=None, controls=None)``:
+
+1. loads: constant and applied wrenches (gravity enters with the bias forces);
+2. ``model.substeps`` substeps of h = dt/substeps. Semi-implicit Euler
+   (``integrator="semi_implicit"``, the default; MuJoCo's ``Euler``): the
+   velocity phase solves (M + hD + h²K) q̈ = τ (:mod:`.dynamics`), then the
+   constraint passes (:mod:`.constraints`: loop closures, exact joint friction,
+   impulse contacts with warm start, soft passes, the position update, relax
+   passes, restitution) or, with penalty contact, the contact forces on the
+   predicted velocities; then qpos advances with the new q̇. ``rk4``:
+   MuJoCo's RK4 on (qpos, qvel), with its correction of ball and free
+   rotations, for scenes without contact, loop closures or exact friction;
+3. the read-outs: ``State.pos`` (centres of mass), ``quat``, ``vel`` and
+   ``angvel`` from the new qpos and qvel, and ``time += dt``.
+
+Impulse contact detects once a step on the starting pose, as the free-body
+solver does, and rebuilds the rows' Jacobians each substep from their
+anchors; penalty contact detects every substep.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxrb.compile import full_precision
+from jaxrb.model.types import Model, Params, State, Wrench
+from jaxrb.physics.collision.pairs import detect
+from jaxrb.physics.contact.common import carried_impulses
+from jaxrb.physics.contact.penalty import penalty_wrench
+from jaxrb.physics.joints import constraints
+from jaxrb.physics.joints.dynamics import factor, forces, generalized, smooth_force, solve, world_inertia
+from jaxrb.physics.joints.kinematics import body_velocities, integrate_positions, kinematics
+
+#: Integrators of scenes with joints (``scene.build``'s ``integrator``): MuJoCo's Euler
+#: (``semi_implicit``), the linearised implicit midpoint in velocity (``midpoint``, the default), the
+#: linearised implicit Euler in velocity and position (``implicit``) and MuJoCo's RK4.
+JOINT_INTEGRATORS = ("midpoint", "semi_implicit", "implicit", "rk4")
+
+
+def read_out(model: Model, params: Params, state: State, qpos, qvel) -> State:
+    """``state`` with qpos, qvel and the bodies' poses and velocities they give.
+
+    Args:
+        qpos: (nq,) coordinates; qvel: (nv,) velocities.
+
+    Returns:
+        The State: ``pos`` (n, 3) centres of mass, ``quat`` (n, 4) body
+        frames, ``vel`` and ``angvel`` (n, 3) world frame.
+    """
+    kin = kinematics(model.joints, params, qpos)
+    vel, angvel = body_velocities(kin, qvel)
+    return state.replace(qpos=qpos, qvel=qvel, pos=kin.com, quat=kin.quat, vel=vel, angvel=angvel)
+
+
+def _loads(model: Model, params: Params, applied: Optional[Wrench]):
+    """World force and torque (n, 3) on each body from Params and the applied Wrench (not gravity)."""
+    force, torque = params.force, params.torque
+    if applied is not None:
+        force, torque = force + applied.force, torque + applied.torque
+    return force, torque
+
+
+def _body_damping(model: Model, params: Params, kin, qvel, force, torque):
+    """Loads with the bodies' linear and angular damping added (explicit, as Params document)."""
+    if not model.damping:
+        return force, torque
+    vel, angvel = body_velocities(kin, qvel)
+    momentum = jnp.einsum("bij,bj->bi", world_inertia(kin, params), angvel)
+    return (force - params.linear_damping[:, None] * params.mass[:, None] * vel,
+            torque - params.angular_damping[:, None] * momentum)
+
+
+#: How far each integrator takes the Coriolis, actuator (θ_v) and position (θ_q) terms implicitly:
+#: M̃ = M + hD + h²K − θ_v h ∂f/∂q̇ − θ_q h² ∂f/∂q, right-hand side f + θ_q h (∂f/∂q) q̇.
+THETAS = {"semi_implicit": (0.0, 0.0), "midpoint": (0.5, 0.0), "implicit": (1.0, 1.0)}
+
+
+def _velocity_phase(model, params, kin, qpos, qvel, h, controls, loads):
+    """(q̇ after the velocity phase, the factored M̃).
+
+    Damping, the limits and smooth friction are implicit in every integrator
+    (as in MuJoCo's Euler); the smooth forces f (:func:`.dynamics.smooth_force`:
+    Coriolis and centrifugal terms, springs, gravity, actuators) are
+    linearised with the integrator's θ (:data:`THETAS`).
+    """
+    loads = _body_damping(model, params, kin, qvel, *loads)
+    terms = forces(model, params, kin, qpos, qvel, h, controls, loads)
+    matrix = terms.mass_matrix + jnp.diag(h * terms.damping + h * h * terms.stiffness)
+    rhs = terms.force - h * terms.stiffness * qvel
+    theta_v, theta_q = THETAS[model.integrator]
+    if theta_v:
+        smooth = lambda qpos, qvel, kin=None: smooth_force(model, params, qpos, qvel, controls, loads, kin)
+        matrix = matrix - theta_v * h * jax.jacfwd(lambda velocity: smooth(qpos, velocity, kin))(qvel)
+    if theta_q:
+        tree = model.joints
+        turned = lambda step: smooth(integrate_positions(tree, qpos, step, 1.0), qvel)
+        stiffness = jax.jacfwd(turned)(jnp.zeros_like(qvel))
+        matrix, rhs = matrix - theta_q * h * h * stiffness, rhs + theta_q * h * stiffness @ qvel
+    found = factor(matrix, symmetric=not theta_v)
+    return qvel + h * solve(found, rhs), found
+
+
+def _zero_impulses(model: Model, qvel, rows=None):
+    tree = model.joints
+    count = 0 if rows is None else rows.separation.shape[0]
+    return (jnp.zeros(tree.equality_rows, qvel.dtype), jnp.zeros(len(tree.friction_dofs), qvel.dtype),
+            jnp.zeros((count, 3), qvel.dtype))
+
+
+def _needs_rows(model: Model) -> bool:
+    tree = model.joints
+    return bool(tree.equality_kind) or (bool(tree.friction_dofs) and tree.joint_friction == "exact")
+
+
+def _euler_substep(model, params, qpos, qvel, impulses, h, controls, loads, rows=None):
+    """One velocity-first substep with impulse contact (``rows``) or none; returns (qpos, qvel, impulses)."""
+    kin = kinematics(model.joints, params, qpos)
+    qvel, found = _velocity_phase(model, params, kin, qpos, qvel, h, controls, loads)
+    return _constrained_update(model, params, kin, qpos, qvel, found, impulses, h, rows)
+
+
+def _constrained_update(model, params, kin, qpos, qvel, found, impulses, h, rows=None):
+    """The constraint passes around the position update: (qpos, qvel, impulses) at the substep's end.
+
+    Warm start, ``iterations`` soft passes, positions (projected back onto
+    the loop closures), ``relax_iterations`` rigid passes, restitution.
+    """
+    if rows is None and not _needs_rows(model):
+        return integrate_positions(model.joints, qpos, qvel, h), qvel, impulses
+    sys = constraints.system(model, params, kin, found, h, qvel, rows)
+    qvel = constraints.warm_start(sys, qvel, impulses)
+
+    def passes(qvel, impulses, count, soft):
+        one = lambda _, carry: constraints.solve_pass(model, params, sys, rows, *carry, h, soft)
+        return jax.lax.fori_loop(0, count, one, (qvel, impulses)) if count else (qvel, impulses)
+
+    qvel, impulses = passes(qvel, impulses, model.iterations, True)
+    qpos = integrate_positions(model.joints, qpos, qvel, h)
+    if model.joints.equality_kind:
+        qpos = constraints.project_closures(model, params, qpos, found)
+    qvel, impulses = passes(qvel, impulses, model.relax_iterations, False)
+    if rows is not None:
+        qvel, impulses = constraints.restitution_pass(params, sys, rows, qvel, impulses)
+    return qpos, qvel, impulses
+
+
+def _penalty_substep(model, params, state, qpos, qvel, h, controls, loads):
+    """One substep with penalty contact: the contact law on the velocities predicted without it, then the
+    contact's generalized force through the same factored M̃; returns (qpos, qvel, state)."""
+    kin = kinematics(model.joints, params, qpos)
+    vel, angvel = body_velocities(kin, qvel)
+    current = state.replace(pos=kin.com, quat=kin.quat, vel=vel, angvel=angvel)
+    contacts = detect(model, params, current)
+    held = carried_impulses(current, contacts)[:, 1:] / h
+    qvel, found = _velocity_phase(model, params, kin, qpos, qvel, h, controls, loads)
+    predicted_vel, predicted_angvel = body_velocities(kin, qvel)
+    predicted = current.replace(vel=predicted_vel, angvel=predicted_angvel)
+    force, torque, normal_force, held = penalty_wrench(model, params, current, contacts, h, predicted, held)
+    qvel = qvel + h * solve(found, generalized(kin, force, torque))
+    qpos, qvel, _ = _constrained_update(model, params, kin, qpos, qvel, found, _zero_impulses(model, qvel), h)
+    carried = jnp.concatenate([normal_force[:, None], held], axis=-1) * h
+    return qpos, qvel, state.replace(contact_impulse=carried, contact_key=contacts.key, overflow=contacts.overflow)
+
+
+def _rk4_step(model, params, qpos, qvel, h, controls, loads):
+    """MuJoCo's RK4 (a = ½, ½, 1; b = ⅙, ⅓, ⅓, ⅙) with its correction of ball and free rotations."""
+    tree = model.joints
+
+    def acceleration(qpos, qvel):
+        kin = kinematics(tree, params, qpos)
+        terms = forces(model, params, kin, qpos, qvel, h, controls,
+                       _body_damping(model, params, kin, qvel, *loads), integrator="rk4")
+        return solve(factor(terms.mass_matrix, symmetric=True), terms.force)
+
+    rotations = [tree.dof_adr[j] + (3 if kind == "free" else 0)
+                 for j, kind in enumerate(tree.joint_kind) if kind in ("ball", "free")]
+
+    def corrected(qvel, turn):
+        # MuJoCo 4's RK4 takes a ball's stage tangent as ω + ½ θ×ω + θ×(θ×ω)/12 (θ: the stage's turn).
+        for d in rotations:
+            omega, theta = qvel[d:d + 3], turn[d:d + 3]
+            half = jnp.cross(theta, omega)
+            qvel = qvel.at[d:d + 3].set(omega + 0.5 * half + jnp.cross(theta, half) / 12.0)
+        return qvel
+
+    a, b = (0.5, 0.5, 1.0), (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+    tangents, rates = [qvel], [acceleration(qpos, qvel)]
+    for stage in range(3):
+        turn = h * a[stage] * tangents[-1]
+        stage_qvel = qvel + h * a[stage] * rates[-1]
+        rates.append(acceleration(integrate_positions(tree, qpos, turn / h, h), stage_qvel))
+        tangents.append(corrected(stage_qvel, turn))
+    new_qvel = qvel + h * sum(weight * rate for weight, rate in zip(b, rates))
+    new_qpos = integrate_positions(tree, qpos, sum(weight * t for weight, t in zip(b, tangents)), h)
+    return new_qpos, new_qvel
+
+
+def make_joint_step(model: Model) -> Callable:
+    """``step(state, params, applied=None, controls=None) -> State`` for a Model with joints.
+
+    Args:
+        model: a Model whose ``joints`` is a JointTree.
+
+    Returns:
+        The pure step (see :func:`jaxrb.make_step`); ``controls`` (na,) in
+        the model's actuator order, None for zero.
+    """
+    tree = model.joints
+    substeps = model.substeps
+
+    def run_free(state, params, qpos, qvel, h, controls, loads):
+        impulses = _zero_impulses(model, qvel)
+        for _ in range(substeps):
+            if model.integrator == "rk4":
+                qpos, qvel = _rk4_step(model, params, qpos, qvel, h, controls, loads)
+            else:
+                qpos, qvel, impulses = _euler_substep(model, params, qpos, qvel, impulses, h, controls, loads)
+        return state, qpos, qvel
+
+    def run_penalty(state, params, qpos, qvel, h, controls, loads):
+        overflow = jnp.zeros((), bool)
+        for _ in range(substeps):
+            qpos, qvel, state = _penalty_substep(model, params, state, qpos, qvel, h, controls, loads)
+            overflow = overflow | state.overflow
+        return state.replace(overflow=overflow), qpos, qvel
+
+    def run_impulse(state, params, qpos, qvel, h, controls, loads):
+        contacts = detect(model, params, state)
+        rows = constraints.prepare_contacts(model, params, kinematics(tree, params, qpos), contacts)
+        equality, friction, _ = _zero_impulses(model, qvel, rows)
+        impulses = (equality, friction, constraints.carried_row_impulses(state, rows, contacts))
+
+        def substep(_, carry):
+            return _euler_substep(model, params, *carry, h, controls, loads, rows)
+
+        qpos, qvel, impulses = jax.lax.fori_loop(0, substeps, substep, (qpos, qvel, impulses))
+        return (state.replace(contact_impulse=constraints.world_row_impulses(rows, impulses[2]),
+                              contact_key=contacts.key, overflow=contacts.overflow), qpos, qvel)
+
+    has_contact = model.contact != "none" and model.num_contacts > 0
+    run = run_free if not has_contact else run_penalty if model.contact == "penalty" else run_impulse
+
+    @full_precision  # float32 products in float32 on GPUs too (jaxrb.compile)
+    def step(state: State, params: Params, applied: Optional[Wrench] = None, controls=None) -> State:
+        if controls is not None and np.shape(controls)[-1:] != (tree.num_actuators,):
+            raise ValueError(f"step: 'controls' must have shape ({tree.num_actuators},) (the model's actuators "
+                             f"in order), got {np.shape(controls)}")
+        h = params.dt / substeps
+        loads = _loads(model, params, applied)
+        state, qpos, qvel = run(state, params, state.qpos, state.qvel, h, controls, loads)
+        state = read_out(model, params, state, qpos, qvel)
+        return state.replace(time=state.time + params.dt)
+
+    step.model = model
+    return step
