@@ -1,4 +1,7 @@
-"""Scene files: JSON round trips, malformed files, and MJCF import checked against MuJoCo."""
+"""jaxrb's JSON scene files: round trips (joints included), version 1 files, malformed files.
+
+MJCF and URDF import (through MuJoCo's compiler) is tested in tests/test_mjcf.py.
+"""
 
 import ast
 import copy
@@ -15,7 +18,6 @@ import jaxrb as rb
 from jaxrb.files import mjcf
 from jaxrb.files import scenefile as sf
 from jaxrb.files import common as scenefile_common
-EXAMPLE = pathlib.Path(__file__).resolve().parent.parent / "examples" / "box_drop.xml"
 
 
 def assert_same_build(first, second):
@@ -63,16 +65,47 @@ def scene_2d():
     return scene
 
 
-@pytest.mark.parametrize("make_scene", [scene_3d, scene_2d], ids=["3d", "2d"])
-def test_json_round_trip_rebuilds_identical_model_params_state(make_scene, tmp_path):
+def scene_joints():
+    """Every joint kind, both loop closures, every actuator kind, both exclusions, the add_body
+    keywords of articulated bodies (com, shape_pos, shape_quat), joint options with their defaults and not."""
+    scene = rb.Scene(dim=3)
+    scene.add_plane(friction=0.7)
+    base = scene.add_body(rb.Box((0.1, 0.1, 0.1)), mass=2.0, pos=(0.0, 0.0, 1.0), name="base")
+    arm = scene.add_body(rb.Capsule(0.05, 0.2), mass=1.0, inertia=(0.01, 0.01, 0.002), pos=(0.0, 0.0, 0.7),
+                         com=(0.0, 0.0, -0.05), shape_pos=(0.0, 0.0, -0.1), shape_quat=(1.0, 0.1, 0.0, 0.0))
+    ball = scene.add_body(rb.Sphere(0.05), pos=(0.3, 0.0, 0.5))
+    weight = scene.add_body(None, mass=0.5, inertia=(1e-3, 1e-3, 1e-3), pos=(0.3, 0.0, 0.3))
+    loose = scene.add_body(rb.Sphere(0.05), pos=(1.0, 0.0, 0.5))
+    rail = scene.add_joint(rb.Slider(axis=(1, 0, 0)), base, None, range=(-1, 1), damping=0.5, name="rail")
+    elbow = scene.add_joint(rb.Hinge(axis=np.array([0.0, 1.0, 0.0]), anchor=(0.0, 0.0, 0.9)), arm, base,
+                            stiffness=3.0, springref=0.2, ref=0.1, armature=0.01, frictionloss=0.05)
+    scene.add_joint(rb.Ball(anchor=(0.3, 0.0, 0.55)), ball, arm)
+    scene.add_joint(rb.Fixed(), weight, ball)
+    scene.add_joint(rb.Free(), loose)
+    scene.add_equality(rb.Connect(anchor=(0.3, 0.0, 0.3)), weight, None, name="pin")
+    scene.add_equality(rb.Weld(), loose, base)
+    scene.add_actuator(elbow, "position", kp=20.0, kv=1.0, ctrlrange=(-1, 1))
+    scene.add_actuator(rail, "general", gain=2.0, bias=(0.1, -1.0, -0.2), forcerange=(-5, 5), gear=2.0)
+    scene.add_actuator(rail, "velocity", kv=0.5)
+    scene.add_actuator(elbow)
+    scene.exclude_collision(base, ball)
+    scene.exclude_collision(weight, plane=0)
+    return scene
+
+
+@pytest.mark.parametrize("make_scene, options", [
+    (scene_3d, dict(dt=0.004, substeps=2)), (scene_2d, dict(dt=0.004, substeps=2)),
+    (scene_joints, dict(dt=0.004, substeps=2, joint_friction="smooth", integrator="semi_implicit"))],
+    ids=["3d", "2d", "joints"])
+def test_json_round_trip_rebuilds_identical_model_params_state(make_scene, options, tmp_path):
     scene = make_scene()
     path = tmp_path / "scene.json"
-    sf.save_scene(path, scene, dt=0.004, substeps=2)
+    sf.save_scene(path, scene, **options)
     loaded = sf.load_scene(path)
     assert loaded.source == str(path) and loaded.warnings == []
-    assert loaded.build_options == {"dt": 0.004, "substeps": 2}
+    assert loaded.build_options == options
     assert loaded.scene.num_bodies == scene.num_bodies
-    assert_same_build(scene.build(dt=0.004, substeps=2), loaded.build())
+    assert_same_build(scene.build(**options), loaded.build())
     # A second save of the loaded scene writes the same file.
     again = tmp_path / "again.json"
     sf.save_scene(again, loaded.scene, **loaded.build_options)
@@ -81,7 +114,7 @@ def test_json_round_trip_rebuilds_identical_model_params_state(make_scene, tmp_p
 
 def test_saved_file_holds_what_the_user_gave():
     data = sf.scene_to_dict(scene_3d())
-    assert data["format"] == "jaxrb-scene" and data["version"] == 1 and data["dim"] == 3
+    assert data["format"] == "jaxrb-scene" and data["version"] == 2 and data["dim"] == 3
     assert data["gravity"] == [0.1, 0.0, -9.7]
     crate = data["bodies"][0]
     assert crate == {"shape": {"kind": "box", "half_extents": [0.1, 0.2, 0.3]}, "mass": 2.0,
@@ -90,7 +123,31 @@ def test_saved_file_holds_what_the_user_gave():
     assert "shape" not in data["bodies"][4]
     assert data["planes"][0] == {"friction": 0.7}
     assert "build" not in data
+    assert not {"joints", "equalities", "actuators", "exclusions"} & set(data)  # written where the scene has any
     json.dumps(data, allow_nan=False)  # plain data only
+
+
+def test_saved_joints_are_written_as_the_user_gave_them():
+    data = sf.scene_to_dict(scene_joints())
+    assert data["version"] == 2
+    assert data["bodies"][1] == {"shape": {"kind": "capsule", "radius": 0.05, "half_length": 0.2}, "mass": 1.0,
+                                 "inertia": [0.01, 0.01, 0.002], "pos": [0.0, 0.0, 0.7], "com": [0.0, 0.0, -0.05],
+                                 "shape_pos": [0.0, 0.0, -0.1], "shape_quat": [1.0, 0.1, 0.0, 0.0]}
+    assert data["joints"] == [
+        {"kind": "slide", "axis": [1, 0, 0], "child": 0, "range": [-1, 1], "damping": 0.5, "name": "rail"},
+        {"kind": "hinge", "axis": [0.0, 1.0, 0.0], "anchor": [0.0, 0.0, 0.9], "child": 1, "parent": 0, "ref": 0.1,
+         "stiffness": 3.0, "springref": 0.2, "armature": 0.01, "frictionloss": 0.05},
+        {"kind": "ball", "anchor": [0.3, 0.0, 0.55], "child": 2, "parent": 1},
+        {"kind": "fixed", "child": 3, "parent": 2},
+        {"kind": "free", "child": 4}]
+    assert data["equalities"] == [{"kind": "connect", "anchor": [0.3, 0.0, 0.3], "body_a": 3, "name": "pin"},
+                                  {"kind": "weld", "body_a": 4, "body_b": 0}]
+    assert data["actuators"] == [
+        {"joint": 1, "kind": "position", "kp": 20.0, "kv": 1.0, "ctrlrange": [-1, 1]},
+        {"joint": 0, "kind": "general", "gear": 2.0, "gain": 2.0, "bias": [0.1, -1.0, -0.2], "forcerange": [-5, 5]},
+        {"joint": 0, "kind": "velocity", "kv": 0.5}, {"joint": 1, "kind": "motor"}]
+    assert data["exclusions"] == [{"body_a": 0, "body_b": 2}, {"body_a": 3, "plane": 0}]
+    json.dumps(data, allow_nan=False)
 
 
 def test_recorded_arguments_are_copies():
@@ -177,6 +234,15 @@ def test_every_add_body_and_build_keyword_is_typed():
                           | set(rb.model.options.FLAT_KEYWORDS))
     assert all(kind.rstrip("?") != "any" for kind in kinds.values()), kinds
     assert kinds["dt"] == "number" and kinds["substeps"] == "integer?" and kinds["contact"] == "string?"
+    assert kinds["joint_friction"] == "string"
+    for method, checkers in ((rb.Scene.add_joint, sf._joint_field_checkers()),
+                             (rb.Scene.add_equality, sf._equality_field_checkers()),
+                             (rb.Scene.add_actuator, sf._actuator_field_checkers()),
+                             (rb.Scene.exclude_collision, sf._exclusion_field_checkers())):
+        assert set(inspect.signature(method).parameters) - {"self", "kind"} == set(checkers) - {"kind"}, method
+    # Every joint and loop-closure kind has a name in the file, and its fields a type check.
+    assert set(sf.JOINT_KIND_NAMES.values()) == set(rb.model.joints.JOINT_KINDS)
+    assert set(sf.EQUALITY_KIND_NAMES.values()) == set(rb.model.joints.EQUALITY_KINDS)
 
 
 def _base():
@@ -187,9 +253,23 @@ def _base():
             "build": {"dt": 0.004}}
 
 
-def _edit(path, value):
+def _joint_base():
+    return {"format": "jaxrb-scene", "version": 2, "dim": 3,
+            "bodies": [{"shape": {"kind": "box", "half_extents": [0.1, 0.1, 0.1]}, "mass": 1.0, "pos": [0, 0, 1]},
+                       {"shape": {"kind": "sphere", "radius": 0.1}, "pos": [0, 0, 0.5], "com": [0, 0, 0.01]}],
+            "planes": [{}],
+            "joints": [{"kind": "slide", "axis": [0, 0, 1], "child": 0},
+                       {"kind": "hinge", "axis": [0, 1, 0], "anchor": [0, 0, 0.75], "child": 1, "parent": 0,
+                        "range": [-1, 1]}],
+            "equalities": [{"kind": "connect", "anchor": [0, 0, 0.5], "body_a": 1}],
+            "actuators": [{"joint": 1, "kind": "position", "kp": 10.0}],
+            "exclusions": [{"body_a": 1, "plane": 0}],
+            "build": {"dt": 0.004, "joint_friction": "smooth"}}
+
+
+def _edit(path, value, base=_base):
     """A copy of the base file with the field at ``path`` (a tuple of keys) set, or deleted if None."""
-    data = copy.deepcopy(_base())
+    data = copy.deepcopy(base())
     target = data
     for key in path[:-1]:
         target = target[key]
@@ -201,7 +281,10 @@ def _edit(path, value):
 
 
 MALFORMED = [
-    (("version",), 2, r"version: unsupported version 2; this jaxrb reads version\(s\) 1"),
+    (("version",), 3, r"version: unsupported version 3; this jaxrb reads version\(s\) 1, 2"),
+    (("version",), "1", r"version: unsupported version '1'"),
+    (("joints",), [], r"joints: needs version 2 of the format \(this file says version 1\)"),
+    (("bodies", 0, "com"), [0, 0, 0], r"bodies\[0\]\.com: needs version 2"),
     (("format",), "mujoco", r"format: expected 'jaxrb-scene'"),
     (("dim",), None, r"missing required key 'dim'"),
     (("dim",), 4, r"dim: expected 2 or 3"),
@@ -235,6 +318,74 @@ def test_malformed_files_name_the_field(path, value, message):
         return
     with pytest.raises(ValueError, match="^scene\\.json: " + message):
         sf.scene_from_dict(data, source="scene.json")
+
+
+MALFORMED_JOINTS = [
+    (("joints", 1, "kind"), "hinges",
+     r"joints\[1\]\.kind: unknown joint kind string 'hinges'; valid kinds are: hinge, slide, ball, fixed, free"),
+    (("joints", 1, "kind"), None, r"joints\[1\]: missing required key 'kind'; valid kinds are: hinge"),
+    (("joints", 0, "anchor"), [0, 0, 0],
+     r"joints\[0\]\.anchor: unknown key 'anchor'; valid keys of a slide joint are: kind, axis, child, parent, range"),
+    (("joints", 1, "dampnig"), 0.1, r"joints\[1\]\.dampnig: unknown key 'dampnig'; valid keys of a hinge joint are: "
+                                     r"kind, axis, anchor, child, .*damping"),
+    (("joints", 1, "axis"), [0, 1], r"joints\[1\]\.axis: expected 3 numbers, got 2"),
+    (("joints", 1, "axis"), [0, 0, 0], r"joints\[1\]\.axis: must be non-zero"),
+    (("joints", 1, "child"), 5, r"joints\[1\]\.child: must be a body index 0\.\.1, got 5"),
+    (("joints", 1, "child"), None, r"joints\[1\]: missing required key 'child'"),
+    (("joints", 1, "parent"), 0.0, r"joints\[1\]\.parent: expected an integer, got float 0\.0"),
+    (("joints", 1, "range"), [1, -1], r"joints\[1\]\.range: must have lower <= upper"),
+    (("joints", 0, "range"), [0, 1, 2], r"joints\[0\]\.range: expected 2 numbers, got 3"),
+    (("joints", 1, "damping"), -1.0, r"joints\[1\]\.damping: must be >= 0"),
+    (("joints", 0), "slide", r"joints\[0\]: expected an object, got string 'slide'"),
+    (("joints",), {}, r"joints: expected a list of objects, got an object"),
+    (("equalities", 0, "kind"), "pin", r"equalities\[0\]\.kind: unknown equality kind string 'pin'; "
+                                       r"valid kinds are: connect, weld"),
+    (("equalities", 0, "body_b"), 1, r"equalities\[0\]\.body_b: is body_a \(1\) itself"),
+    (("equalities", 0, "anchor"), "origin", r"equalities\[0\]\.anchor: expected a list of 3 numbers"),
+    (("actuators", 0, "kind"), "muscle", r"actuators\[0\]\.kind: unknown actuator kind string 'muscle'; "
+                                         r"valid kinds are: motor, position, velocity, general"),
+    (("actuators", 0, "gain"), 2.0, r"actuators\[0\]\.gain: does not apply to a 'position' actuator"),
+    (("actuators", 0, "joint"), 7, r"actuators\[0\]\.joint: must be a joint index 0\.\.1, got 7"),
+    (("actuators", 0, "joint"), None, r"actuators\[0\]: missing required key 'joint'"),
+    (("actuators", 0, "ctrlrange"), [1, 0], r"actuators\[0\]\.ctrlrange: must have lower <= upper"),
+    (("actuators", 0, "gian"), 1.0, r"actuators\[0\]\.gian: unknown key 'gian'; valid keys are: joint, kind, "
+                                    r"gear, kp, kv, gain"),
+    (("exclusions", 0, "plane"), 3, r"exclusions\[0\]\.plane: must be a plane index 0\.\.0, got 3"),
+    (("exclusions", 0, "body_b"), 0, r"exclusions\[0\]\.body_b: give exactly one of body_b and plane"),
+    (("bodies", 1, "shape_quat"), [0, 0, 0, 0], r"bodies\[1\]\.shape_quat: must be non-zero"),
+    (("bodies", 1, "com"), [0, 0], r"bodies\[1\]\.com: expected 3 numbers, got 2"),
+    (("build", "joint_friction"), "smooth", None),  # valid as it is
+]
+
+
+@pytest.mark.parametrize("path, value, message", MALFORMED_JOINTS,
+                         ids=[".".join(map(str, case[0])) + f"={case[1]!r}" for case in MALFORMED_JOINTS])
+def test_malformed_joint_entries_name_the_field(path, value, message):
+    data = _edit(path, value, base=_joint_base)
+    if message is None:
+        model, _, state = sf.scene_from_dict(data, source="scene.json").build()
+        assert model.joints.nq == 2 and model.joints.joint_friction == "smooth" and state.qpos.shape == (2,)
+        return
+    with pytest.raises(ValueError, match="^scene\\.json: " + message):
+        sf.scene_from_dict(data, source="scene.json")
+
+
+def test_joint_errors_at_build_and_in_2d_name_the_file():
+    data = _edit(("build", "joint_friction"), "sticky", base=_joint_base)
+    with pytest.raises(ValueError, match=r"^s\.json: build: unknown joint_friction 'sticky'"):
+        sf.scene_from_dict(data, source="s.json").build()
+    data = {"format": "jaxrb-scene", "version": 2, "dim": 2, "bodies": [{"shape": {"kind": "circle", "radius": 0.1}}],
+            "joints": [{"kind": "hinge", "child": 0}]}
+    with pytest.raises(ValueError, match=r"^s\.json: joints\[0\]\.kind: joints are 3D only"):
+        sf.scene_from_dict(data, source="s.json")
+
+
+def test_version_1_files_still_read():
+    """A version 1 file (no joints) builds what the same scene saved as version 2 builds."""
+    first = sf.scene_from_dict(_base(), source="v1.json")
+    data = sf.scene_to_dict(first.scene, **first.build_options)
+    assert data["version"] == 2 and _base()["version"] == 1
+    assert_same_build(first.build(), sf.scene_from_dict(data).build())
 
 
 def test_2d_shape_errors_name_the_field():
@@ -275,6 +426,11 @@ def test_suffixes(tmp_path):
     scene.add_body(rb.Circle(radius=0.1), name=7)
     with pytest.raises(ValueError, match=r"save_scene: bodies\[0\]\.name: only string names"):
         sf.save_scene(tmp_path / "scene.json", scene)
+    scene = rb.Scene(dim=3)
+    scene.add_body(rb.Sphere(radius=0.1))
+    scene.add_joint(rb.Hinge(), 0, name=("shoulder", 1))
+    with pytest.raises(ValueError, match=r"save_scene: joints\[0\]\.name: only string names"):
+        sf.save_scene(tmp_path / "scene.json", scene)
 
 
 def test_modules_split_without_a_cycle():
@@ -291,201 +447,3 @@ def test_modules_split_without_a_cycle():
         imported |= {f"{node.module}.{alias.name}" for node in ast.walk(tree)
                      if isinstance(node, ast.ImportFrom) for alias in node.names}
         assert not imported & forbidden, (module.__name__, imported & forbidden)
-
-
-# --------------------------------------------------------------------------- #
-# MJCF
-# --------------------------------------------------------------------------- #
-
-def test_example_box_drop_loads():
-    loaded = sf.load_scene(EXAMPLE)
-    assert loaded.warnings == []
-    assert loaded.build_options == {"dt": 0.002, "integrator": "semi_implicit", "contact": "impulse",
-                                    "substeps": 2}
-    model, params, state = loaded.build()
-    assert model.shapes == (rb.Box(half_extents=(0.1, 0.1, 0.1)),) and model.names == ("box",)
-    assert model.planes == (((0.0, 0.0, 1.0), 0.0),) and model.contact == "impulse"
-    np.testing.assert_allclose(params.mass, [1.0])
-    np.testing.assert_allclose(params.inertia[0], np.eye(3) * 0.04 / 6.0)
-    np.testing.assert_allclose(params.friction, [0.8])
-    np.testing.assert_allclose(params.plane_friction, [0.8])
-    np.testing.assert_allclose(params.dt, 0.002)
-    np.testing.assert_allclose(state.pos, [[0.0, 0.0, 0.5]])
-    half = np.radians(15.0)
-    np.testing.assert_allclose(state.quat, [[np.cos(half), 0.0, 0.0, np.sin(half)]], atol=1e-15)
-
-
-def test_mjcf_scene_saves_as_json(tmp_path):
-    loaded = sf.load_scene(EXAMPLE)
-    path = tmp_path / "box_drop.json"
-    sf.save_scene(path, loaded.scene, **loaded.build_options)
-    assert_same_build(loaded.build(), sf.load_scene(path).build())
-
-
-POSES = """<mujoco>{compiler}<worldbody>
-<geom type="plane" size="1 1 0.1" euler="5 10 0" pos="0 0 -1" friction="0.6 0.01 0.001"/>
-<body pos="0 0 1" euler="30 40 50"><freejoint/><geom type="box" size=".1 .2 .3"/></body>
-<body pos="1 0 1" axisangle="1 2 3 0.7"><freejoint/>
-  <geom type="capsule" size=".1 .3" pos="0.1 0.2 0.3" euler="10 20 30"/></body>
-<body pos="2 0 1" xyaxes="1 1 0 -1 2 0.5"><joint type="free"/>
-  <geom type="capsule" fromto="0 0 0 0.3 0.2 0.1" size=".05" mass="2"/></body>
-<body pos="3 0 1" zaxis="1 2 3"><freejoint/><geom size=".1" quat="1 2 3 4" pos="0 0 .1" density="300"/></body>
-<body pos="4 0 1" quat="2 1 0 0"><freejoint/>
-  <inertial pos="0.1 0 0" mass="3" diaginertia="1 2 2.5" euler="20 30 40"/></body>
-<body pos="5 0 1" quat="2 1 0 0"><freejoint/><geom type="box" size=".1 .2 .3" pos="0.1 0 0" euler="0 0 90"/>
-  <inertial pos="0.1 0 0" mass="3" fullinertia="1 2 2.5 0.1 0.2 0.3"/></body>
-</worldbody></mujoco>"""
-
-
-@pytest.mark.parametrize("compiler", ['', '<compiler angle="radian" eulerseq="XYZ"/>',
-                                      '<compiler eulerseq="zyx"/>', '<compiler eulerseq="ZxY"/>'])
-def test_mjcf_poses_and_inertia_match_mujoco(compiler):
-    """Orientation conventions (quat order, euler sequences, axis-angle, xyaxes, zaxis,
-    fromto, degrees/radians), geom offsets and inertial frames, against MuJoCo's compiler."""
-    mujoco = pytest.importorskip("mujoco")
-    xml = POSES.format(compiler=compiler)
-    mj_model = mujoco.MjModel.from_xml_string(xml)
-    data = mujoco.MjData(mj_model)
-    mujoco.mj_forward(mj_model, data)
-    loaded = sf.scene_from_mjcf(xml)
-    assert loaded.warnings and "friction" in loaded.warnings[-1]  # 0.6 plane vs 1.0 bodies
-    model, params, state = loaded.build()
-    normal, offset = model.planes[0]
-    plane_z = data.geom_xmat[0].reshape(3, 3)[:, 2]
-    np.testing.assert_allclose(normal, plane_z, atol=1e-12)
-    np.testing.assert_allclose(offset, data.geom_xpos[0] @ plane_z, atol=1e-12)
-    for index in range(model.num_bodies):
-        body = index + 1
-        rotation = mjcf._rotation(np.asarray(state.quat[index]))
-        mj_rotation = data.ximat[body].reshape(3, 3)
-        np.testing.assert_allclose(state.pos[index], data.xipos[body], atol=1e-12)
-        np.testing.assert_allclose(params.mass[index], mj_model.body_mass[body], rtol=1e-12)
-        np.testing.assert_allclose(rotation @ np.asarray(params.inertia[index]) @ rotation.T,
-                                   mj_rotation @ np.diag(mj_model.body_inertia[body]) @ mj_rotation.T,
-                                   atol=1e-10)
-        if index < 4:  # the jaxrb body frame is the geom frame
-            geom_rotation = data.geom_xmat[body].reshape(3, 3)
-            np.testing.assert_allclose(state.pos[index], data.geom_xpos[body], atol=1e-12)
-            if index == 0:
-                np.testing.assert_allclose(rotation, geom_rotation, atol=1e-12)
-            elif index in (1, 2):  # a capsule's frame is fixed up to a turn about its axis
-                np.testing.assert_allclose(abs(rotation[:, 2] @ geom_rotation[:, 2]), 1.0, atol=1e-12)
-    assert model.shapes[4] is None
-    assert model.shapes[2] == rb.Capsule(radius=0.05, half_length=0.5 * np.sqrt(0.14))
-
-
-def _rest_height(run_step, state, params, steps):
-    trajectory = rb.rollout(run_step, state, params, num_steps=steps)
-    return np.asarray(trajectory.pos[-1, :, 2]), np.asarray(trajectory.vel[-1])
-
-
-def test_mjcf_box_and_sphere_rest_like_mujoco():
-    """The example box and a sphere, dropped for 1.5 s in MuJoCo and in jaxrb, rest at the
-    same height (their centres 0.1 m above the plane) within 5 mm."""
-    text = EXAMPLE.read_text().replace(
-        "</worldbody>", '<body name="ball" pos="1 0 0.3"><freejoint/>'
-        '<geom type="sphere" size="0.1" mass="0.5" friction="0.8"/></body></worldbody>')
-    loaded = sf.scene_from_mjcf(text)
-    assert loaded.warnings == []
-    model, params, state = loaded.build()
-    steps = round(1.5 / 0.002)
-    heights, velocities = _rest_height(jax.jit(rb.make_step(model)), state, params, steps)
-    np.testing.assert_allclose(heights, [0.1, 0.1], atol=5e-4)
-    assert np.max(np.abs(velocities)) < 1e-2
-
-    mujoco = pytest.importorskip("mujoco")
-    mj_model = mujoco.MjModel.from_xml_string(text)
-    assert mj_model.opt.timestep == 0.002
-    data = mujoco.MjData(mj_model)
-    for _ in range(steps):
-        mujoco.mj_step(mj_model, data)
-    mj_heights = data.geom_xpos[1:, 2]
-    np.testing.assert_allclose(mj_heights, [0.1, 0.1], atol=5e-3)
-    np.testing.assert_allclose(heights, mj_heights, atol=5e-3)
-
-
-def _mjcf(body="", world="", top=""):
-    return (f"<mujoco>{top}<worldbody><geom type='plane' size='1 1 .1'/>{world}"
-            f"<body name='b' pos='0 0 1'>{body}</body></worldbody></mujoco>")
-
-
-FREE_BOX = "<freejoint/><geom type='box' size='.1 .1 .1'/>"
-
-UNSUPPORTED = [
-    (_mjcf("<joint type='hinge'/><geom size='.1'/>"), r"<joint>: attribute 'type'='hinge'"),
-    (_mjcf("<joint/><geom size='.1'/>"), r"<joint>: attribute 'type'='hinge'"),
-    (_mjcf("<geom size='.1'/>"), r"<body name='b'>: a body without a free joint"),
-    (_mjcf(FREE_BOX + "<body><freejoint/><geom size='.1'/></body>"), r"<body name='b'> <body>: nested bodies"),
-    (_mjcf(FREE_BOX + "<geom name='g2' size='.1'/>"), r"<geom name='g2'>: a body may have at most one geom"),
-    (_mjcf("<freejoint/><geom type='mesh' mesh='m'/>"), r"<geom>: attribute 'type'='mesh'"),
-    (_mjcf("<freejoint/><geom type='cylinder' size='.1 .1'/>"), r"<geom>: attribute 'type'='cylinder'"),
-    (_mjcf("<freejoint/><geom type='box' size='.1 .1'/>"), r"<geom>: attribute 'size': expected at least 3"),
-    (_mjcf("<freejoint/><geom type='sphere' size='.1' fromto='0 0 0 1 0 0'/>"), r"attribute 'fromto'"),
-    (_mjcf("<freejoint/><geom size='.1' contype='1' conaffinity='2'/>"), r"'contype'='1', 'conaffinity'='2'"),
-    (_mjcf("<freejoint/><geom size='.1' euler='1 2 3' quat='1 0 0 0'/>"), r"give at most one orientation"),
-    (_mjcf("<freejoint/><geom size='.1' pos='0.1 0 0'/><inertial pos='0 0 0' mass='1' diaginertia='1 1 1'/>"),
-     r"<inertial>: attribute 'pos'.*centre of mass"),
-    (_mjcf("<freejoint damping='1'/><geom size='.1'/>"), r"<freejoint>: attribute 'damping'"),
-    (_mjcf("<joint type='free' damping='1'/><geom size='.1'/>"), r"<joint>: attribute 'damping'=1.0"),
-    (_mjcf(FREE_BOX, world="<geom type='box' size='1 1 .1'/>"), r"<worldbody> <geom>: attribute 'type'='box'"),
-    (_mjcf(FREE_BOX, top="<default><geom friction='.5'/></default>"), r"<default>: element <default>"),
-    (_mjcf(FREE_BOX, top="<include file='x.xml'/>"), r"<include>: element <include>"),
-    (_mjcf(FREE_BOX).replace("</mujoco>", "<actuator><motor joint='j'/></actuator></mujoco>"),
-     r"<actuator>: element <actuator>"),
-    (_mjcf(FREE_BOX).replace("</mujoco>", "<tendon/></mujoco>"), r"<tendon>: element <tendon>"),
-    (_mjcf(FREE_BOX).replace("</mujoco>", "<equality/></mujoco>"), r"<equality>: element <equality>"),
-    (_mjcf(FREE_BOX, top="<option><flag contact='disable'/></option>"), r"<option> <flag>"),
-    (_mjcf(FREE_BOX, top="<option viscosity='0.1'/>"), r"<option>: attribute 'viscosity'"),
-    (_mjcf(FREE_BOX, top="<option timestep='-1'/>"), r"<option>: attribute 'timestep': must be positive"),
-    (_mjcf(FREE_BOX, top="<compiler angle='grad'/>"), r"<compiler>: attribute 'angle'"),
-    (_mjcf(FREE_BOX).replace("<body name='b'", "<body name='b' childclass='c'"),
-     r"<body name='b'>: attribute 'childclass' is not supported"),
-    (_mjcf("<freejoint/><geom size='.1' mass='-1'/>"), r"<geom>: attribute 'mass': must be positive"),
-    (_mjcf("<freejoint/><geom size='abc'/>"), r"<geom>: attribute 'size': expected numbers, got 'abc'"),
-    ("<!DOCTYPE m [<!ENTITY x 'y'>]><mujoco/>", r"document: DOCTYPE and ENTITY"),
-    ("<mujoco><worldbody>", r"document: not well-formed XML"),
-    ("<robot/>", r"<robot>: the root element must be <mujoco>"),
-]
-
-
-@pytest.mark.parametrize("xml, message", UNSUPPORTED, ids=[case[1][:40] for case in UNSUPPORTED])
-def test_unsupported_mjcf_is_an_error_naming_the_element(xml, message):
-    with pytest.raises(ValueError, match=r"^m\.xml: .*" + message):
-        sf.scene_from_mjcf(xml, source="m.xml")
-
-
-def test_mjcf_harmless_attributes_become_warnings():
-    xml = _mjcf("<freejoint/><geom size='.1' solref='0.01 1' rgba='1 0 0 1' condim='4'/><site/>",
-                top="<option integrator='RK4' cone='elliptic'/><visual/>")
-    xml = xml.replace("</mujoco>", "<sensor/></mujoco>")
-    loaded = sf.scene_from_mjcf(xml)
-    text = "\n".join(loaded.warnings)
-    for expected in ("solref='0.01 1'", "rgba='1 0 0 1'", "condim='4' ignored", "no torsional", "<site>", "<visual>",
-                     "<sensor>", "integrator='RK4'", "cone='elliptic'"):
-        assert expected in text, (expected, text)
-    assert not any(warning.startswith("friction") for warning in loaded.warnings)  # both default 1
-    assert loaded.scene.num_bodies == 1
-
-
-def test_mjcf_friction_mixing_warning_and_values():
-    loaded = sf.scene_from_mjcf(_mjcf("<freejoint/><geom size='.1' friction='0.25'/>"))
-    assert len(loaded.warnings) == 1
-    warning = loaded.warnings[0]
-    assert "max()" in warning and "'b' (0.25) with plane 0 (1): MuJoCo 1, jaxrb 0.5" in warning
-    _, params, _ = loaded.build()
-    np.testing.assert_allclose(params.friction, [0.25])
-    np.testing.assert_allclose(params.plane_friction, [1.0])
-
-
-def test_mjcf_defaults_and_collision_bits():
-    xml = ("<mujoco><option timestep='0.005' gravity='0 0 -3'/><worldbody>"
-           "<geom type='plane' size='1 1 .1' contype='2' conaffinity='2'/>"
-           "<body><freejoint/><geom size='0.1' contype='3' conaffinity='3'/></body></worldbody></mujoco>")
-    loaded = sf.scene_from_mjcf(xml)
-    assert loaded.build_options["dt"] == 0.005 and loaded.build_options["substeps"] == 5
-    model, params, _ = loaded.build()
-    assert model.shapes == (rb.Sphere(radius=0.1),)
-    np.testing.assert_allclose(params.mass, [1000.0 * 4.0 / 3.0 * np.pi * 0.1 ** 3])
-    np.testing.assert_allclose(params.gravity, [0.0, 0.0, -3.0])
-    body, plane = loaded.scene._bodies[0], loaded.scene._planes[0]
-    assert body.collision_filter == (3, 3) and plane.collision_filter == (2, 2)

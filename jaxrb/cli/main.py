@@ -22,8 +22,8 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     demo = commands.add_parser("demo", help="simulate small scenes, print a report, write pictures")
     demo.add_argument("--out", default="jaxrb-demo", help="folder for the pictures (default: jaxrb-demo)")
-    run = commands.add_parser("run", help="simulate a scene file (.json or MJCF .xml)")
-    run.add_argument("scene_file", help="a jaxrb .json scene or a MuJoCo MJCF .xml")
+    run = commands.add_parser("run", help="simulate a scene file (.json, MJCF .xml or .urdf)")
+    run.add_argument("scene_file", help="a jaxrb .json scene, a MuJoCo MJCF .xml or a .urdf")
     run.add_argument("--steps", type=int, required=True, help="number of steps to simulate")
     run.add_argument("--out", required=True, help="output folder (trajectory.npz, animation, report.txt)")
     run.add_argument("--every", type=int, default=1, help="keep every k-th state (default 1)")
@@ -31,7 +31,7 @@ def _parser() -> argparse.ArgumentParser:
     for name, text in (("fit", "fit a scene file's parameters to measured trajectories"),
                        ("evaluate", "score a scene file on measured trajectories (published protocol)")):
         command = commands.add_parser(name, help=text)
-        command.add_argument("scene_file", help="a jaxrb .json scene or a MuJoCo MJCF .xml")
+        command.add_argument("scene_file", help="a jaxrb .json scene, a MuJoCo MJCF .xml or a .urdf")
         command.add_argument("data", help="measured trajectories (.npz; see jaxrb.fit.measured)")
         command.add_argument("--sample-dt", type=_seconds,
                              help="sample spacing (s, e.g. 1/148), for files that do not record it")

@@ -39,7 +39,8 @@ class SceneFile:
     """A scene read from a file, with the build options the file gave.
 
     Attributes:
-        scene: the :class:`~jaxrb.Scene`, every body and plane already added.
+        scene: the :class:`~jaxrb.Scene`, every body, plane, joint, loop
+            closure, actuator and collision exclusion already added.
         build_options: keyword arguments for :meth:`jaxrb.Scene.build` (``dtype``
             as a name such as ``"float32"``).
         warnings: what the reader skipped or approximated (MJCF import); empty

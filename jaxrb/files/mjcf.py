@@ -1,590 +1,558 @@
-"""Import of a MuJoCo MJCF subset: planes, and free bodies with at most one sphere, box or capsule.
+"""MJCF and URDF through MuJoCo's own compiler: a compiled ``mujoco.MjModel`` turned into a Scene.
 
-:func:`scene_from_mjcf` (and :func:`jaxrb.load_scene` on a ``.xml`` or
-``.mjcf`` file) reads the subset of MuJoCo's XML that maps onto jaxrb without
-changing its meaning, and returns a :class:`~jaxrb.files.common.SceneFile`
-as the JSON reader (:mod:`jaxrb.files.scenefile`) does. The file is treated as
-data: it is parsed with :mod:`xml.etree.ElementTree` (document type
-declarations and entities are refused) and nothing in it is imported,
-evaluated or executed. What is read:
+MuJoCo (the ``mujoco`` package, the ``mjcf`` extra: ``pip install jaxrb[mjcf]``)
+reads the file with everything its format allows (``<default>`` classes,
+``childclass``, ``<include>``, ``fromto``, frames, compiler options, URDF)
+and applies its own defaults; :func:`scene_from_mjmodel` then maps the
+compiled arrays onto jaxrb, so jaxrb reads what MuJoCo reads, the way Brax
+and MJX do:
 
-* ``<option timestep gravity integrator>``: ``timestep`` (default 0.002 s,
-  as MuJoCo) becomes the build ``dt``. jaxrb always runs its own
-  ``semi_implicit`` integrator with ``impulse`` contact, which is the closest
-  match to MuJoCo's default semi-implicit ``Euler`` with soft constraints;
-  another ``integrator`` is recorded as a warning. Substeps are chosen so
-  that each substep is at most 1 ms (``substeps = ceil(timestep / 1 ms)``,
-  so 2 at MuJoCo's default 2 ms): contacts then resolve at
-  ``0.25·substeps/dt`` >= 250 Hz, stiff enough that resting bodies sink by
-  micrometres (MuJoCo's own soft contacts sink by about 0.1-1 mm), while a
-  2 ms MuJoCo model still costs only two substeps per step.
-* ``<compiler angle eulerseq inertiafromgeom>``: angles in degrees unless
-  ``angle="radian"`` (as MuJoCo); ``eulerseq`` lowercase letters are axes that
-  move with the frame, uppercase fixed axes (MuJoCo's rule; default ``xyz``).
-* ``<worldbody>``: ``<geom type="plane">`` becomes a static plane whose
-  normal is the geom's z axis; each child ``<body>`` with a free joint
-  (``<freejoint/>`` or ``<joint type="free"/>``) becomes a dynamic body with
-  at most one geom of type ``sphere``, ``box`` or ``capsule`` (MuJoCo sizes:
-  sphere radius; box half sizes; capsule radius and half-length, or radius
-  and ``fromto``). The geom's pose inside its body is folded into the jaxrb
-  body's pose, whose frame is the shape's frame. Mass comes from
-  ``<inertial>`` (whose centre of mass must be the geom's centre: jaxrb keeps
-  a primitive's centre of mass at its centre), else the geom's ``mass``,
-  else its ``density`` (default 1000 kg/m³, as MuJoCo).
-* ``friction``: the first (sliding) coefficient, default 1 as in MuJoCo.
-  MuJoCo combines two geoms' friction with ``max``, jaxrb with
-  ``sqrt(product)``; a warning lists the pairs where the two differ.
-* ``contype``/``conaffinity``: mapped to jaxrb's collision category and mask
-  when they are equal on every geom (then MuJoCo's "either way" rule and
-  jaxrb's "both ways" rule agree); otherwise an error.
+* bodies: every moving body (a joint on it or on an ancestor) is a jaxrb
+  body with MuJoCo's mass, centre of mass (``body_ipos``) and inertia
+  (``body_inertia`` turned by ``body_iquat``); its frame is MuJoCo's body
+  frame (``State.quat`` = ``xquat``, ``State.pos`` = ``xipos``), its one
+  colliding geom (sphere, capsule or box) placed in it at the geom's pose
+  (``shape_pos``/``shape_quat``, given where the geom is off the body's frame).
+  Geoms that cannot collide (``contype`` and ``conaffinity`` 0) add mass only.
+  Bodies fixed to the world are not bodies: their planes become static
+  planes, and a non-plane static geom that can touch a moving one is an
+  error (static shapes other than planes are not in jaxrb yet).
+* joints: hinge, slide and ball with their anchors, axes, ``ref``,
+  ``range`` (where limited), ``stiffness``/``springref``, ``damping``,
+  ``armature`` and ``frictionloss``; a moving body without joints is welded
+  to its parent (:class:`~jaxrb.model.joints.Fixed`); a free joint is a body
+  without parent. ``qpos``/``qvel`` then have MuJoCo's layout.
+* actuators with a joint transmission and no activation dynamics
+  (``motor``, ``position``, ``velocity``, ``general`` with fixed gain and
+  affine bias), their gear, ``ctrlrange`` and ``forcerange``; an actuator's
+  ``damping`` and ``armature`` join the joint's (times gear²), as MuJoCo does;
+  a joint's ``actuatorfrcrange`` (URDF's effort limit) joins its one
+  actuator's ``forcerange`` (divided by the gear), and is moot without one.
+* a URDF's root link is fixed to the world, as MuJoCo fixes it;
+  ``floating_base=True`` gives the world's jointless children a free joint
+  before MuJoCo compiles the file.
+* ``<equality>`` ``connect`` and ``weld`` between bodies (active ones).
+* contact filtering as MuJoCo's: ``contype``/``conaffinity`` and
+  ``<exclude>`` are applied pair by pair with
+  :meth:`~jaxrb.Scene.exclude_collision`, a body and its parent by the
+  joint tree's own rule. Friction is the geom's sliding coefficient; jaxrb
+  mixes a pair's as √(μ_A μ_B) where MuJoCo takes the max (a warning lists
+  pairs where they differ).
+* ``<option>``: ``timestep`` is the build's ``dt``, ``gravity``, the
+  ``integrator`` (``Euler`` -> ``semi_implicit``, ``RK4`` -> ``rk4`` where the
+  scene has no contact, loop closure or exact friction; the implicit ones
+  -> ``semi_implicit`` with a warning), and the disable flags for contact,
+  gravity, limits, equality, frictionloss, springs and dampers.
 
-Attributes that only tune MuJoCo's constraint solver or its rendering
-(``solref``, ``solimp``, ``margin``, ``condim``, ``rgba``, ...) and elements
-that do not change the dynamics (``visual``, ``asset``, ``sensor``, lights,
-cameras, sites, ...) are skipped and listed in the result's
-:attr:`~jaxrb.files.common.SceneFile.warnings`. Everything else (hinge or
-other joints, bodies without a free joint, nested bodies, several geoms on
-one body, other geom types, actuators, tendons, equality constraints,
-default classes, includes, ...) is a ``ValueError`` naming the element and
-attribute: nothing is silently misread.
+What changes the dynamics and has no jaxrb meaning (tendons, activation
+dynamics, muscles, other transmissions, mocap bodies, gravity compensation,
+fluid forces, cylinders, ellipsoids, meshes, height fields, several
+colliding geoms on one body, joint equalities) is a ``ValueError`` naming
+the element. What only tunes MuJoCo's own solver (``solref``, ``solimp``,
+``margin``, ``condim`` beyond 3, ...) is listed in the SceneFile's warnings,
+with how jaxrb differs; lights, cameras, textures, sites and sensors are
+skipped quietly.
 """
 
 from __future__ import annotations
 
 import math
-import re
-import xml.etree.ElementTree as ElementTree
+import os
 from typing import Optional
 
 import numpy as np
 
-from jaxrb.scene import Scene
 from jaxrb.files.common import SceneFile
+from jaxrb.model.joints import Ball, Connect, Fixed, Hinge, Slider, Weld
 from jaxrb.model.shapes import Box, Capsule, Sphere
+from jaxrb.scene import Scene
 
 DEFAULT_TIMESTEP = 0.002
 DEFAULT_FRICTION = 1.0
+#: Longest substep (s) of an imported scene with impulse contact.
 MAX_SUBSTEP = 1e-3
 
-# Attributes that only tune MuJoCo's solver or rendering: skipped with a warning.
-_GEOM_HARMLESS = ("solref", "solimp", "solmix", "margin", "gap", "priority", "rgba",
-                  "material", "group", "user", "fluidshape", "fluidcoef")
-_JOINT_HARMLESS = ("group", "pos", "axis", "ref", "springref", "limited", "range", "margin",
-                   "solreflimit", "solimplimit", "solreffriction", "solimpfriction", "user",
-                   "actuatorfrclimited", "actuatorfrcrange", "actuatorgravcomp")
-_OPTION_HARMLESS = ("cone", "impratio", "tolerance", "ls_tolerance", "noslip_iterations",
-                    "noslip_tolerance", "ccd_iterations", "ccd_tolerance", "iterations",
-                    "ls_iterations", "solver", "jacobian", "o_margin", "o_solref", "o_solimp",
-                    "o_friction", "sdf_iterations", "sdf_initpoints", "apirate", "magnetic",
-                    "actuatorgroupdisable", "timestep", "gravity", "integrator")
-_COMPILER_HARMLESS = ("autolimits", "meshdir", "texturedir", "assetdir", "strippath",
-                      "discardvisual", "fitaabb", "usethread", "inertiagrouprange", "alignfree",
-                      "saveinertial", "convexhull", "exactmeshinertia", "angle", "eulerseq",
-                      "inertiafromgeom")
-_IGNORED_ELEMENTS = ("visual", "asset", "statistic", "size", "sensor", "keyframe", "custom")
-_IGNORED_IN_BODY = ("site", "camera", "light")
-_ORIENTATIONS = ("quat", "axisangle", "euler", "xyaxes", "zaxis")
+# mjtGeom, mjtJoint, mjtIntegrator, mjtDisableBit, mjtEq, mjtTrn values (stable in MuJoCo's API).
+_PLANE, _SPHERE, _CAPSULE, _BOX = 0, 2, 3, 6
+_GEOM_NAMES = {0: "plane", 1: "hfield", 2: "sphere", 3: "capsule", 4: "ellipsoid", 5: "cylinder", 6: "box",
+               7: "mesh", 8: "sdf"}
+_FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3
+_DISABLE = {"equality": 1 << 1, "frictionloss": 1 << 2, "limit": 1 << 3, "contact": 1 << 4, "spring": 1 << 5,
+            "damper": 1 << 6, "gravity": 1 << 7}
 
 
-class _Mjcf:
-    """One MJCF document being read; collects warnings and formats errors."""
+def _mujoco():
+    try:
+        import mujoco  # noqa: PLC0415  (optional: only model files need it)
+    except ImportError:  # pragma: no cover - the dev extra installs it
+        raise ValueError("reading MJCF or URDF needs MuJoCo's compiler: pip install 'jaxrb[mjcf]' "
+                         "(the mujoco package)") from None
+    return mujoco
 
-    def __init__(self, source: str):
-        self.source = source
-        self.warnings: list[str] = []
-        self.angle_scale = math.pi / 180.0
-        self.eulerseq = "xyz"
-        self.inertia_from_geom = "auto"
 
-    # ---- errors and attributes ----------------------------------------- #
+def _name(mujoco, model, kind, index):
+    found = mujoco.mj_id2name(model, kind, index)
+    return found if found else f"#{index}"
 
-    def fail(self, where: str, message: str):
-        raise ValueError(f"{self.source}: {where}: {message}")
 
-    def warn(self, where: str, message: str):
-        self.warnings.append(f"{where}: {message}")
+def _rotation(quat):
+    w, x, y, z = quat
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
-    @staticmethod
-    def label(element, parent: str = "") -> str:
-        name = element.get("name")
-        own = f"<{element.tag}{f' name={name!r}' if name else ''}>"
-        return f"{parent} {own}".strip() if parent else own
 
-    def check_attributes(self, element, where, supported, harmless=()):
-        skipped = []
-        for attribute in element.attrib:
-            if attribute in supported:
-                continue
-            if attribute in harmless:
-                skipped.append(attribute)
-                continue
-            self.fail(where, f"attribute {attribute!r} is not supported by the MJCF importer "
-                      f"(supported: {', '.join(supported) or 'none'})")
-        if skipped:
-            self.warn(where, "ignored " + ", ".join(f"{a}={element.get(a)!r}" for a in skipped)
-                      + " (MuJoCo solver, rendering or compiler settings jaxrb does not use)")
+class _Converter:
+    """One compiled model on its way to a Scene (see the module docs)."""
 
-    def numbers(self, element, where, attribute, count=None, minimum=None, maximum=None, default=None):
-        text = element.get(attribute)
-        if text is None:
-            return default
-        try:
-            values = [float(item) for item in text.split()]
-        except ValueError:
-            self.fail(where, f"attribute {attribute!r}: expected numbers, got {text!r}")
-        if not all(math.isfinite(value) for value in values):
-            self.fail(where, f"attribute {attribute!r}: expected finite numbers, got {text!r}")
-        if count is not None and len(values) != count:
-            self.fail(where, f"attribute {attribute!r}: expected {count} numbers, got {len(values)} ({text!r})")
-        if minimum is not None and len(values) < minimum:
-            self.fail(where, f"attribute {attribute!r}: expected at least {minimum} numbers, "
-                      f"got {len(values)} ({text!r})")
-        if maximum is not None and len(values) > maximum:
-            self.fail(where, f"attribute {attribute!r}: expected at most {maximum} numbers, "
-                      f"got {len(values)} ({text!r})")
-        return values
+    def __init__(self, mujoco, model, source, floating_base):
+        self.mujoco, self.m, self.source = mujoco, model, source
+        self.floating_base = floating_base
+        self.warnings: list = []
+        self.data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, self.data)  # the built pose: qpos0
 
-    def number(self, element, where, attribute, default=None):
-        values = self.numbers(element, where, attribute, count=1)
-        return default if values is None else values[0]
+    def fail(self, element, message):
+        raise ValueError(f"{self.source}: {element}: {message}")
 
-    def positive(self, where, attribute, value):
-        if not value > 0.0:
-            self.fail(where, f"attribute {attribute!r}: must be positive, got {value}")
-        return value
+    def warn(self, element, message):
+        warning = f"{element}: {message}"
+        if warning not in self.warnings:  # a geom's margin is met once per pair it is in
+            self.warnings.append(warning)
 
-    def orientation(self, element, where):
-        """The quaternion (w, x, y, z) of an element's orientation attributes (identity if none)."""
-        given = [name for name in _ORIENTATIONS if name in element.attrib]
-        if len(given) > 1:
-            self.fail(where, f"attributes {', '.join(map(repr, given))}: give at most one orientation")
-        if not given:
-            return np.array([1.0, 0.0, 0.0, 0.0])
-        kind = given[0]
-        if kind == "quat":
-            quat = np.array(self.numbers(element, where, "quat", count=4))
-            return self.unit(where, "quat", quat)
-        if kind == "axisangle":
-            values = self.numbers(element, where, "axisangle", count=4)
-            axis = self.unit(where, "axisangle", np.array(values[:3]))
-            half = 0.5 * values[3] * self.angle_scale
-            return np.concatenate([[math.cos(half)], math.sin(half) * axis])
-        if kind == "euler":
-            angles = np.array(self.numbers(element, where, "euler", count=3)) * self.angle_scale
-            quat = np.array([1.0, 0.0, 0.0, 0.0])
-            for letter, angle in zip(self.eulerseq, angles):
-                axis = np.eye(3)["xyz".index(letter.lower())]
-                turn = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
-                # Lowercase: about the moving (rotated) axis, so it multiplies on the right;
-                # uppercase: about the fixed axis, so it multiplies on the left.
-                quat = _quat_multiply(quat, turn) if letter.islower() else _quat_multiply(turn, quat)
-            return quat
-        if kind == "xyaxes":
-            values = np.array(self.numbers(element, where, "xyaxes", count=6))
-            x_axis = self.unit(where, "xyaxes", values[:3])
-            y_axis = values[3:] - (values[3:] @ x_axis) * x_axis
-            y_axis = self.unit(where, "xyaxes", y_axis)
-            return _matrix_to_quat(np.column_stack([x_axis, y_axis, np.cross(x_axis, y_axis)]))
-        z_axis = self.unit(where, "zaxis", np.array(self.numbers(element, where, "zaxis", count=3)))
-        return _quat_between_z_and(z_axis)
+    def element(self, kind, index):
+        objects = self.mujoco.mjtObj
+        label = {"body": objects.mjOBJ_BODY, "joint": objects.mjOBJ_JOINT, "geom": objects.mjOBJ_GEOM,
+                 "actuator": objects.mjOBJ_ACTUATOR, "equality": objects.mjOBJ_EQUALITY}[kind]
+        return f"{kind} {_name(self.mujoco, self.m, label, index)!r}"
 
-    def unit(self, where, attribute, vector):
-        norm = float(np.linalg.norm(vector))
-        if norm < 1e-12:
-            self.fail(where, f"attribute {attribute!r}: must be a non-zero vector")
-        return vector / norm
+    def disabled(self, flag):
+        return bool(self.m.opt.disableflags & _DISABLE[flag])
 
-    def friction(self, element, where):
-        values = self.numbers(element, where, "friction", minimum=1, maximum=3)
-        if values is None:
-            return DEFAULT_FRICTION
-        if values[0] < 0.0:
-            self.fail(where, f"attribute 'friction': must be >= 0, got {values[0]}")
-        return values[0]
+    # -- what is refused outright --------------------------------------------------------------
+    def check_unsupported(self):
+        m = self.m
+        if m.ntendon:
+            self.fail("tendon", f"the model has {m.ntendon} tendon{'s' if m.ntendon > 1 else ''}; jaxrb has none")
+        if m.nmocap:
+            self.fail("body", f"{m.nmocap} mocap bodies; jaxrb has no kinematic bodies yet")
+        for b in range(m.nbody):
+            if m.body_gravcomp[b] != 0:
+                self.fail(self.element("body", b), "gravcomp (gravity compensation) is not in jaxrb")
+        if m.opt.density or m.opt.viscosity:
+            self.fail("option", "density/viscosity (fluid forces) are not in jaxrb")
+        for j in np.flatnonzero(m.jnt_actfrclimited):
+            driving = [a for a in range(m.nu) if m.actuator_trntype[a] == 0 and m.actuator_trnid[a, 0] == j]
+            if len(driving) > 1:
+                self.fail(self.element("joint", int(j)), "actuatorfrcrange (a clamp on the joint's summed actuator "
+                          f"force) with {len(driving)} actuators on the joint is not in jaxrb; clamp each "
+                          "actuator's forcerange")
+            # One actuator: the clamp joins its forcerange (add_actuators); none: nothing to clamp.
 
-    def condim(self, element, where):
-        condim = element.get("condim", "3")
-        if condim == "3":
-            return
-        if condim not in ("1", "4", "6"):
-            self.fail(where, f"attribute 'condim': expected 1, 3, 4 or 6, got {condim!r}")
-        self.warn(where, f"condim={condim!r} ignored: jaxrb contacts always have sliding friction "
-                  "and nothing else (MuJoCo's condim 3)"
-                  + ("; MuJoCo's condim 1 is frictionless" if condim == "1" else
-                     ", no torsional or rolling friction"))
+    # -- bodies ----------------------------------------------------------------------------------
+    def moving_bodies(self):
+        """MuJoCo body ids that move (a dof on them or an ancestor), in body order; with a floating
+        base, the world's direct children without dofs too (they become free bodies)."""
+        m = self.m
+        moving, floating = [], set()
+        for b in range(1, m.nbody):
+            at, moves = b, False
+            while at > 0:
+                if m.body_jntnum[at]:
+                    moves = True
+                    break
+                if self.floating_base and m.body_parentid[at] == 0:
+                    moves = True
+                    floating.add(at)
+                    break
+                at = m.body_parentid[at]
+            if moves:
+                moving.append(b)
+        return moving, floating
 
-    def collision_bits(self, element, where):
-        contype = element.get("contype", "1")
-        conaffinity = element.get("conaffinity", "1")
-        try:
-            bits = int(contype), int(conaffinity)
-        except ValueError:
-            self.fail(where, f"attributes 'contype'/'conaffinity': expected integers, got "
-                      f"{contype!r}, {conaffinity!r}")
-        if bits[0] != bits[1] or not 0 <= bits[0] < 2 ** 32:
-            self.fail(where, f"attributes 'contype'={contype!r}, 'conaffinity'={conaffinity!r}: only "
-                      "equal values are supported (then MuJoCo's rule, contype_A & conaffinity_B or "
-                      "contype_B & conaffinity_A, equals jaxrb's category/mask rule)")
-        return bits[0]
-
-    # ---- document -------------------------------------------------------- #
-
-    def read(self, text: str) -> SceneFile:
-        if re.search(r"<!(DOCTYPE|ENTITY)", text, re.I):
-            self.fail("document", "DOCTYPE and ENTITY declarations are not supported")
-        try:
-            root = ElementTree.fromstring(text)
-        except ElementTree.ParseError as error:
-            self.fail("document", f"not well-formed XML: {error}")
-        if root.tag != "mujoco":
-            self.fail(f"<{root.tag}>", "the root element must be <mujoco>")
-        self.check_attributes(root, "<mujoco>", ("model",))
-
-        for element in root:
-            if element.tag == "compiler":
-                self.compiler(element)
-        timestep, gravity = DEFAULT_TIMESTEP, (0.0, 0.0, -9.81)
-        for element in root:
-            if element.tag == "option":
-                timestep, gravity = self.option(element, timestep, gravity)
-        scene = Scene(dim=3, gravity=gravity)
-        worldbodies = 0
-        for element in root:
-            tag = element.tag
-            if tag in ("compiler", "option"):
-                continue
-            if tag == "worldbody":
-                worldbodies += 1
-                self.worldbody(element, scene)
-            elif tag in _IGNORED_ELEMENTS:
-                self.warn(f"<{tag}>", "element ignored (it does not change the dynamics)")
-            elif tag in ("default", "include", "actuator", "tendon", "equality", "contact",
-                         "deformable", "extension", "flex"):
-                self.fail(f"<{tag}>", f"element <{tag}> is not supported by the MJCF importer")
-            else:
-                self.fail(f"<{tag}>", f"unknown or unsupported element <{tag}>")
-        if not worldbodies:
-            self.fail("<mujoco>", "no <worldbody> element")
-        self.friction_warnings(scene)
-        substeps = max(1, math.ceil(timestep / MAX_SUBSTEP - 1e-9))
-        build = {"dt": timestep, "integrator": "semi_implicit", "contact": "impulse",
-                 "substeps": substeps}
-        return SceneFile(scene=scene, build_options=build, warnings=self.warnings, source=self.source)
-
-    def compiler(self, element):
-        where = "<compiler>"
-        self.check_attributes(element, where, ("angle", "eulerseq", "inertiafromgeom"),
-                              tuple(a for a in _COMPILER_HARMLESS if a not in
-                                    ("angle", "eulerseq", "inertiafromgeom")))
-        angle = element.get("angle", "degree")
-        if angle not in ("degree", "radian"):
-            self.fail(where, f"attribute 'angle': expected 'degree' or 'radian', got {angle!r}")
-        self.angle_scale = math.pi / 180.0 if angle == "degree" else 1.0
-        sequence = element.get("eulerseq", self.eulerseq)
-        if len(sequence) != 3 or any(letter not in "xyzXYZ" for letter in sequence):
-            self.fail(where, f"attribute 'eulerseq': expected 3 letters from xyzXYZ, got {sequence!r}")
-        self.eulerseq = sequence
-        inertia = element.get("inertiafromgeom", self.inertia_from_geom)
-        if inertia not in ("auto", "true", "false"):
-            self.fail(where, f"attribute 'inertiafromgeom': expected 'auto', 'true' or 'false', "
-                      f"got {inertia!r}")
-        self.inertia_from_geom = inertia
-
-    def option(self, element, timestep, gravity):
-        where = "<option>"
-        for attribute in ("density", "viscosity", "wind"):
-            values = self.numbers(element, where, attribute)
-            if values is not None and any(value != 0.0 for value in values):
-                self.fail(where, f"attribute {attribute!r}: fluid forces are not supported (must be 0)")
-        self.check_attributes(element, where, ("timestep", "gravity", "integrator", "density",
-                                               "viscosity", "wind"),
-                              tuple(a for a in _OPTION_HARMLESS
-                                    if a not in ("timestep", "gravity", "integrator")))
-        timestep = self.positive(where, "timestep", self.number(element, where, "timestep", timestep))
-        gravity = self.numbers(element, where, "gravity", count=3, default=gravity)
-        integrator = element.get("integrator", "Euler")
-        if integrator not in ("Euler", "RK4", "implicit", "implicitfast"):
-            self.fail(where, f"attribute 'integrator': unknown value {integrator!r}")
-        if integrator != "Euler":
-            self.warn(where, f"integrator={integrator!r} ignored: jaxrb integrates with its "
-                      "semi-implicit Euler ('semi_implicit') and impulse contact")
-        for child in element:
-            self.fail(f"{where} <{child.tag}>", f"element <{child.tag}> is not supported "
-                      "(it changes which forces and constraints MuJoCo applies)")
-        return timestep, gravity
-
-    def worldbody(self, element, scene):
-        where = "<worldbody>"
-        self.check_attributes(element, where, ())
-        for child in element:
-            if child.tag == "geom":
-                self.plane(child, scene, self.label(child, where))
-            elif child.tag == "body":
-                self.body(child, scene, self.label(child, where))
-            elif child.tag in _IGNORED_IN_BODY:
-                self.warn(self.label(child, where), "element ignored (it does not change the dynamics)")
-            else:
-                self.fail(self.label(child, where), f"element <{child.tag}> is not supported in "
-                          "<worldbody> (supported: <geom type='plane'>, <body>)")
-
-    def plane(self, element, scene, where):
-        kind = element.get("type", "sphere")
-        if kind != "plane":
-            self.fail(where, f"attribute 'type'={kind!r}: static geoms in <worldbody> must be planes "
-                      "(jaxrb has no static bodies); put the geom in a <body> with a <freejoint/>")
-        self.check_attributes(element, where, ("name", "type", "size", "pos", "friction", "contype",
-                                               "conaffinity", "condim") + _ORIENTATIONS,
-                              _GEOM_HARMLESS + ("mass", "density"))
-        self.condim(element, where)
-        pos = np.array(self.numbers(element, where, "pos", count=3, default=[0.0, 0.0, 0.0]))
-        normal = _rotation(self.orientation(element, where))[:, 2]
-        bits = self.collision_bits(element, where)
-        scene.add_plane(normal=normal, offset=float(normal @ pos), friction=self.friction(element, where),
-                        collision_category=bits, collision_mask=bits)
-
-    def body(self, element, scene, where):
-        self.check_attributes(element, where, ("name", "pos") + _ORIENTATIONS, ("user",))
-        body_pos = np.array(self.numbers(element, where, "pos", count=3, default=[0.0, 0.0, 0.0]))
-        body_quat = self.orientation(element, where)
-        joints, geoms, inertials = [], [], []
-        for child in element:
-            label = self.label(child, where)
-            if child.tag in ("freejoint", "joint"):
-                joints.append((child, label))
-            elif child.tag == "geom":
-                geoms.append((child, label))
-            elif child.tag == "inertial":
-                inertials.append((child, label))
-            elif child.tag in _IGNORED_IN_BODY:
-                self.warn(label, "element ignored (it does not change the dynamics)")
-            elif child.tag == "body":
-                self.fail(label, "nested bodies are not supported (jaxrb has free bodies only, "
-                          "no joints between bodies)")
-            else:
-                self.fail(label, f"element <{child.tag}> is not supported in a <body>")
-        if not joints:
-            self.fail(where, "a body without a free joint is welded to its parent; jaxrb supports "
-                      "only free bodies: add <freejoint/>")
-        if len(joints) > 1:
-            self.fail(joints[1][1], "a body may have only one joint, a free joint")
-        self.joint(*joints[0])
+    def body_shape(self, b):
+        """(shape, geom id) of body b's one colliding geom, or (None, None)."""
+        m = self.m
+        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b and self.collides(g)]
         if len(geoms) > 1:
-            self.fail(geoms[1][1], f"a body may have at most one geom in jaxrb, this one has {len(geoms)}")
-        if len(inertials) > 1:
-            self.fail(inertials[1][1], "a body may have only one <inertial>")
+            self.fail(self.element("body", b), f"has {len(geoms)} geoms that can collide "
+                      f"({', '.join(self.element('geom', g) for g in geoms)}); a jaxrb body carries one shape")
+        if not geoms:
+            return None, None
+        g = geoms[0]
+        kind, size = int(m.geom_type[g]), m.geom_size[g]
+        if kind == _SPHERE:
+            return Sphere(radius=float(size[0])), g
+        if kind == _CAPSULE:
+            return Capsule(radius=float(size[0]), half_length=float(size[1])), g
+        if kind == _BOX:
+            return Box(half_extents=tuple(float(s) for s in size[:3])), g
+        self.fail(self.element("geom", g), f"type {_GEOM_NAMES.get(kind, kind)!r} is not a jaxrb shape "
+                                           "(sphere, capsule and box are; planes on the world)")
 
-        name = element.get("name")
-        shape, geom_mass, geom_density = None, None, None
-        geom_pos, geom_quat = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
-        friction, bits = DEFAULT_FRICTION, 1
-        if geoms:
-            geom, label = geoms[0]
-            shape, geom_pos, geom_quat = self.geom(geom, label)
-            geom_mass = self.number(geom, label, "mass")
-            geom_density = self.number(geom, label, "density")
-            if geom_mass is not None:
-                self.positive(label, "mass", geom_mass)
-            if geom_density is not None:
-                self.positive(label, "density", geom_density)
-            friction, bits = self.friction(geom, label), self.collision_bits(geom, label)
-            name = name or geom.get("name")
+    def collides(self, g):
+        """Whether geom g can touch any other geom by the bitmasks (MuJoCo's either-way rule)."""
+        m = self.m
+        return any(self.bitmask(g, other) for other in range(m.ngeom) if other != g)
 
-        use_inertial = bool(inertials) and not (geoms and self.inertia_from_geom == "true")
-        if inertials and not use_inertial:
-            self.warn(inertials[0][1], "ignored: compiler inertiafromgeom='true' takes mass and "
-                      "inertia from the geom")
-        if not use_inertial and not geoms:
-            self.fail(where, "a body without a geom needs an <inertial> element")
-        if not use_inertial and self.inertia_from_geom == "false":
-            self.fail(where, "compiler inertiafromgeom='false' needs an <inertial> element in each body")
+    def bitmask(self, g1, g2):
+        m = self.m
+        return bool((m.geom_contype[g1] & m.geom_conaffinity[g2]) or (m.geom_contype[g2] & m.geom_conaffinity[g1]))
 
-        mass = density = inertia = None
-        frame_pos, frame_quat = geom_pos, geom_quat
-        if use_inertial:
-            inertial, label = inertials[0]
-            mass, inertia_pos, inertia_body = self.inertial(inertial, label)
-            if geoms:
-                scale = max(1.0, float(np.max(np.abs(geom_pos))))
-                if np.max(np.abs(inertia_pos - geom_pos)) > 1e-9 * scale:
-                    self.fail(label, f"attribute 'pos' {inertia_pos.tolist()}: the centre of mass must be "
-                              f"the geom's centre {geom_pos.tolist()} (jaxrb keeps a primitive's centre "
-                              "of mass at its centre)")
-                rotation = _rotation(geom_quat)
-                inertia = rotation.T @ inertia_body @ rotation
-            else:
-                frame_pos, frame_quat = inertia_pos, np.array([1.0, 0.0, 0.0, 0.0])
-                inertia = inertia_body
-            if geom_mass is not None or geom_density is not None:
-                self.warn(geoms[0][1], "mass/density ignored: the body's <inertial> gives its mass")
-        elif geom_mass is not None:
-            mass = geom_mass
-            if geom_density is not None:
-                self.warn(geoms[0][1], "density ignored: 'mass' is given (as MuJoCo does)")
-        else:
-            density = 1000.0 if geom_density is None else geom_density
+    # -- the conversion --------------------------------------------------------------------------
+    def convert(self) -> SceneFile:
+        m, d, mujoco = self.m, self.data, self.mujoco
+        self.check_unsupported()
+        gravity = np.zeros(3) if self.disabled("gravity") else np.array(m.opt.gravity, float)
+        scene = Scene(dim=3, gravity=gravity)
+        moving, floating = self.moving_bodies()
+        if not moving:
+            self.fail("worldbody", "no body moves (none has a joint, nor an ancestor with one); a jaxrb scene "
+                                   "needs a moving body")
+        index = {b: i for i, b in enumerate(moving)}
+        shapes = {}
+        for b in moving:
+            shape, geom = self.body_shape(b)
+            shapes[b] = (shape, geom)
+            mass = float(m.body_mass[b])
+            if mass <= 0.0:
+                self.fail(self.element("body", b), "has no mass; a moving jaxrb body needs mass and inertia "
+                                                   "(give it an <inertial> or a geom)")
+            rotation = _rotation(m.body_iquat[b])
+            inertia = rotation @ np.diag(m.body_inertia[b]) @ rotation.T
+            options = {}
+            if geom is not None:
+                options = dict(friction=float(m.geom_friction[geom][0]))
+                if np.any(m.geom_pos[geom] != 0.0) or np.any(m.geom_quat[geom] != (1.0, 0.0, 0.0, 0.0)):
+                    # a geom away from its body's frame (a geom at the frame, the usual free body, needs none)
+                    options.update(shape_pos=np.array(m.geom_pos[geom], float),
+                                   shape_quat=np.array(m.geom_quat[geom], float))
+            scene.add_body(shape, mass=mass, inertia=inertia, com=np.array(m.body_ipos[b], float),
+                           pos=np.array(d.xpos[b], float), quat=np.array(d.xquat[b], float),
+                           name=_name(mujoco, m, mujoco.mjtObj.mjOBJ_BODY, b), **options)
+        self.add_planes(scene, moving, index)
+        joints = self.add_joints(scene, moving, index, floating)
+        self.add_actuators(scene, joints)
+        self.add_equalities(scene, index)
+        self.filter_contacts(scene, moving, index, shapes)
+        return SceneFile(scene=scene, build_options=self.build_options(scene), warnings=self.warnings,
+                         source=self.source)
 
-        pos = body_pos + _rotation(body_quat) @ frame_pos
-        quat = _quat_multiply(body_quat, frame_quat)
-        try:
-            scene.add_body(shape, mass=mass, density=density, inertia=inertia, pos=pos, quat=quat,
-                           friction=friction, collision_category=bits, collision_mask=bits, name=name)
-        except ValueError as error:
-            self.fail(where, str(error))
+    def add_planes(self, scene, moving, index):
+        m, d = self.m, self.data
+        moving_set = set(moving)
+        self.planes = {}
+        for g in range(m.ngeom):
+            if m.geom_bodyid[g] in moving_set:
+                continue
+            kind = int(m.geom_type[g])
+            touching = [o for o in range(m.ngeom) if m.geom_bodyid[o] in moving_set and self.bitmask(g, o)]
+            if not touching:
+                continue  # a static geom nothing moving can touch: drawn by MuJoCo only
+            if kind != _PLANE:
+                self.fail(self.element("geom", g), f"a static {_GEOM_NAMES.get(kind, kind)!r} that moving geoms "
+                                                   "can touch; jaxrb's static shapes are planes only for now")
+            normal = np.array(d.geom_xmat[g], float).reshape(3, 3)[:, 2]
+            offset = float(normal @ d.geom_xpos[g])
+            self.planes[g] = scene.add_plane(normal=normal, offset=offset, friction=float(m.geom_friction[g][0]))
 
-    def joint(self, element, where):
-        if element.tag == "freejoint":
-            self.check_attributes(element, where, ("name",), ("group", "align"))
+    def add_joints(self, scene, moving, index, floating):
+        """Joints of every moving body; returns {MuJoCo joint id: jaxrb joint index}."""
+        m, d = self.m, self.data
+        found = {}
+        no_limits, no_spring, no_damper, no_friction = (self.disabled(flag) for flag in
+                                                        ("limit", "spring", "damper", "frictionloss"))
+        extra_damping, extra_armature = self.actuator_joint_terms()
+        for b in moving:
+            parent = int(m.body_parentid[b])
+            parent_index = index.get(parent)  # None: the world or a body fixed to it
+            if m.body_jntnum[b] == 0:
+                if b not in floating:
+                    body_name = _name(self.mujoco, m, self.mujoco.mjtObj.mjOBJ_BODY, b)
+                    scene.add_joint(Fixed(), index[b], parent_index, name=f"{body_name}_weld")
+                continue
+            for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]):
+                kind = int(m.jnt_type[j])
+                label = self.element("joint", j)
+                if kind == _FREE:
+                    if parent_index is not None or m.body_jntnum[b] > 1:
+                        self.fail(label, "a free joint must be its body's only joint, on a body of the world")
+                    continue  # a jaxrb body without joints and parent is free
+                dof = int(m.jnt_dofadr[j])
+                anchor, axis = np.array(d.xanchor[j], float), np.array(d.xaxis[j], float)
+                joint_kind = {_HINGE: Hinge(axis=axis, anchor=anchor), _SLIDE: Slider(axis=axis),
+                              _BALL: Ball(anchor=anchor)}[kind]
+                scalar = kind in (_HINGE, _SLIDE)
+                limited = bool(m.jnt_limited[j]) and not no_limits
+                if limited and kind == _BALL:
+                    self.fail(label, "a ball joint's range (a cone) is not in jaxrb")
+                stiffness = 0.0 if no_spring else float(m.jnt_stiffness[j])
+                if stiffness and not scalar:
+                    self.fail(label, "stiffness on a ball joint is not in jaxrb")
+                qpos = int(m.jnt_qposadr[j])
+                found[j] = scene.add_joint(
+                    joint_kind, index[b], parent_index,
+                    range=np.array(m.jnt_range[j], float) if limited else None,
+                    ref=float(m.qpos0[qpos]) if scalar else 0.0, stiffness=stiffness,
+                    springref=float(m.qpos_spring[qpos]) if scalar else 0.0,
+                    damping=0.0 if no_damper else float(m.dof_damping[dof]) + extra_damping.get(dof, 0.0),
+                    armature=float(m.dof_armature[dof]) + extra_armature.get(dof, 0.0),
+                    frictionloss=0.0 if no_friction else float(m.dof_frictionloss[dof]),
+                    name=_name(self.mujoco, m, self.mujoco.mjtObj.mjOBJ_JOINT, j))
+                if m.jnt_margin[j]:
+                    self.warn(label, "margin (limits acting before they are reached) is not in jaxrb")
+        return found
+
+    def actuator_joint_terms(self):
+        """{dof: extra damping} and {dof: extra armature} from actuators' damping and armature (× gear²)."""
+        m = self.m
+        damping, armature = {}, {}
+        for a in range(m.nu):
+            for name, table in (("actuator_damping", damping), ("actuator_armature", armature)):
+                values = getattr(m, name, None)
+                if values is not None and values[a] and m.actuator_trntype[a] == 0:
+                    dof = int(m.jnt_dofadr[m.actuator_trnid[a, 0]])
+                    table[dof] = table.get(dof, 0.0) + float(values[a]) * float(m.actuator_gear[a, 0]) ** 2
+        return damping, armature
+
+    def add_actuators(self, scene, joints):
+        m = self.m
+        for a in range(m.nu):
+            label = self.element("actuator", a)
+            if m.actuator_trntype[a] != 0:
+                self.fail(label, "only joint transmissions are in jaxrb (not tendons, sites, sliders-cranks)")
+            if m.actuator_gaintype[a] != 0 or m.actuator_biastype[a] not in (0, 1):
+                self.fail(label, "only fixed gains and affine biases are in jaxrb (no muscles, no user types)")
+            if m.actuator_dyntype[a] != 0:
+                self.fail(label, "activation dynamics (dyntype, e.g. a filtered or integrating actuator) "
+                                 "are not in jaxrb")
+            if np.any(m.actuator_gainprm[a, 1:3]):
+                self.fail(label, "gainprm beyond the first term (an affine gain) is not in jaxrb")
+            joint = int(m.actuator_trnid[a, 0])
+            if joint not in joints:
+                self.fail(label, f"drives {self.element('joint', joint)}, which is not a hinge or slide here")
+            if np.any(m.actuator_gear[a, 1:]):
+                self.fail(label, "gear beyond its first component")
+            bias = np.array(m.actuator_biasprm[a, :3], float) if m.actuator_biastype[a] == 1 else np.zeros(3)
+            scene.add_actuator(
+                joints[joint], "general", gear=float(m.actuator_gear[a, 0]), gain=float(m.actuator_gainprm[a, 0]),
+                bias=bias, ctrlrange=np.array(m.actuator_ctrlrange[a], float) if m.actuator_ctrllimited[a] else None,
+                forcerange=self.force_range(a, joint, label),
+                name=_name(self.mujoco, m, self.mujoco.mjtObj.mjOBJ_ACTUATOR, a))
+
+    def force_range(self, a, joint, label):
+        """Actuator a's force clamp: its forcerange, and its joint's actuatorfrcrange divided by the gear
+        (the joint's only actuator, check_unsupported), as MuJoCo clamps gear·force; None without either."""
+        m = self.m
+        low, high = (m.actuator_forcerange[a] if m.actuator_forcelimited[a] else (-np.inf, np.inf))
+        gear = float(m.actuator_gear[a, 0])
+        if m.jnt_actfrclimited[joint] and gear != 0.0:
+            bounds = sorted(float(limit) / gear for limit in m.jnt_actfrcrange[joint])
+            low, high = max(low, bounds[0]), min(high, bounds[1])
+            if low > high:
+                self.fail(label, "its forcerange and its joint's actuatorfrcrange leave no force")
+        return None if np.isinf(low) and np.isinf(high) else np.array([low, high], float)
+
+    def add_equalities(self, scene, index):
+        m, d = self.m, self.data
+        if self.disabled("equality"):
             return
-        kind = element.get("type", "hinge")
-        if kind != "free":
-            self.fail(where, f"attribute 'type'={kind!r}: only free joints are supported "
-                      "(jaxrb has no joint constraints)")
-        for attribute in ("damping", "stiffness", "armature", "frictionloss"):
-            value = self.number(element, where, attribute, 0.0)
-            if value != 0.0:
-                self.fail(where, f"attribute {attribute!r}={value}: joint {attribute} is not supported")
-        self.check_attributes(element, where, ("name", "type", "damping", "stiffness", "armature",
-                                               "frictionloss"), _JOINT_HARMLESS)
+        for e in range(m.neq):
+            label = self.element("equality", e)
+            if not m.eq_active0[e]:
+                self.warn(label, "inactive at the start (eq_active0): left out")
+                continue
+            kind = int(m.eq_type[e])
+            if kind not in (0, 1):
+                self.fail(label, "only connect and weld equalities are in jaxrb (not joint or tendon couplings)")
+            if int(m.eq_objtype[e]) != int(self.mujoco.mjtObj.mjOBJ_BODY):
+                self.fail(label, "site-based equalities are not read yet; name the bodies (body1, body2)")
+            b1, b2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+            if b1 not in index:
+                b1, b2 = b2, b1
+            if b1 not in index:
+                self.fail(label, "joins two bodies fixed to the world")
+            data = m.eq_data[e]
+            other = index.get(b2)
+            name = _name(self.mujoco, m, self.mujoco.mjtObj.mjOBJ_EQUALITY, e)
+            if kind == 0:
+                anchor = d.xpos[int(m.eq_obj1id[e])] + _rotation(d.xquat[int(m.eq_obj1id[e])]) @ data[0:3]
+                scene.add_equality(Connect(anchor=np.array(anchor, float)), index[b1], other, name=name)
+            else:
+                relative = self.relative_quat(int(m.eq_obj1id[e]), int(m.eq_obj2id[e]))
+                if min(np.abs(relative - data[6:10]).max(), np.abs(relative + data[6:10]).max()) > 1e-6:
+                    self.fail(label, "relpose differs from the bodies' pose at qpos0; jaxrb's weld keeps the "
+                                     "built relative pose")
+                if data[10] != 1.0:
+                    self.warn(label, "torquescale is not in jaxrb (the weld's rotation is as stiff as its position)")
+                scene.add_equality(Weld(), index[b1], other, name=name)
+            if np.any(m.eq_solref[e] != m.eq_solref[0]) or np.any(m.eq_solimp[e] != m.eq_solimp[0]):
+                self.warn(label, "solref/solimp: jaxrb's loop closures share Params.equality_hertz")
 
-    def geom(self, element, where):
-        """Shape, position (3,) and quaternion (4,) of a body's geom in the body frame."""
-        kind = element.get("type", "sphere")
-        if kind not in ("sphere", "box", "capsule"):
-            self.fail(where, f"attribute 'type'={kind!r}: geom type not supported in a body "
-                      "(supported: sphere, box, capsule)")
-        self.check_attributes(element, where, ("name", "type", "size", "pos", "fromto", "mass",
-                                               "density", "friction", "contype", "conaffinity",
-                                               "condim") + _ORIENTATIONS, _GEOM_HARMLESS)
-        self.condim(element, where)
-        size_count = {"sphere": 1, "box": 3, "capsule": 1 if "fromto" in element.attrib else 2}[kind]
-        size = self.numbers(element, where, "size", minimum=size_count, maximum=3)
-        if size is None:
-            self.fail(where, f"attribute 'size' is required for a {kind} geom")
-        for index in range(size_count):
-            self.positive(where, "size", size[index])
-        pos = np.array(self.numbers(element, where, "pos", count=3, default=[0.0, 0.0, 0.0]))
-        quat = self.orientation(element, where)
-        if "fromto" in element.attrib:
-            if kind != "capsule":
-                self.fail(where, f"attribute 'fromto': supported for capsules only, not {kind}")
-            given = [a for a in ("pos",) + _ORIENTATIONS if a in element.attrib]
-            if given:
-                self.fail(where, f"attribute 'fromto' together with {', '.join(map(repr, given))}: "
-                          "give either fromto or pos/orientation")
-            ends = np.array(self.numbers(element, where, "fromto", count=6))
-            axis = ends[3:] - ends[:3]
-            length = float(np.linalg.norm(axis))
-            if length < 1e-12:
-                self.fail(where, "attribute 'fromto': the two ends coincide")
-            return Capsule(radius=size[0], half_length=0.5 * length), 0.5 * (ends[:3] + ends[3:]), \
-                _quat_between_z_and(axis / length)
-        if kind == "sphere":
-            return Sphere(radius=size[0]), pos, quat
-        if kind == "box":
-            return Box(half_extents=tuple(size[:3])), pos, quat
-        return Capsule(radius=size[0], half_length=size[1]), pos, quat
+    def relative_quat(self, b1, b2):
+        d = self.data
+        w1, v1 = d.xquat[b1][0], -d.xquat[b1][1:]
+        w2, v2 = d.xquat[b2][0], d.xquat[b2][1:]
+        return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
 
-    def inertial(self, element, where):
-        """Mass, centre of mass (3,) and inertia (3, 3) about it in the body frame."""
-        self.check_attributes(element, where, ("pos", "mass", "diaginertia", "fullinertia")
-                              + _ORIENTATIONS)
-        mass = self.number(element, where, "mass")
-        if mass is None:
-            self.fail(where, "attribute 'mass' is required")
-        self.positive(where, "mass", mass)
-        pos = np.array(self.numbers(element, where, "pos", count=3, default=[0.0, 0.0, 0.0]))
-        diagonal = self.numbers(element, where, "diaginertia", count=3)
-        full = self.numbers(element, where, "fullinertia", count=6)
-        if (diagonal is None) == (full is None):
-            self.fail(where, "give exactly one of attributes 'diaginertia' and 'fullinertia'")
-        if full is not None:
-            if any(a in element.attrib for a in _ORIENTATIONS):
-                self.fail(where, "attribute 'fullinertia' cannot be combined with an orientation")
-            xx, yy, zz, xy, xz, yz = full
-            return mass, pos, np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-        rotation = _rotation(self.orientation(element, where))
-        return mass, pos, rotation @ np.diag(diagonal) @ rotation.T
+    def filter_contacts(self, scene, moving, index, shapes):
+        """MuJoCo's bitmask rule and <exclude>, pair by pair (the parent rule is the joint tree's own)."""
+        m = self.m
+        excluded = {(int(s) >> 16, int(s) & 0xFFFF) for s in m.exclude_signature}
+        warned_friction = []
+        for i, a in enumerate(moving):
+            geom_a = shapes[a][1]
+            if geom_a is None:
+                continue
+            for g, plane in self.planes.items():
+                if not self.bitmask(geom_a, g) or (min(a, int(m.geom_bodyid[g])), max(a, int(m.geom_bodyid[g]))) \
+                        in excluded:
+                    scene.exclude_collision(index[a], plane=plane)
+                else:
+                    self.contact_options(geom_a, g, warned_friction)
+            for b in moving[i + 1:]:
+                geom_b = shapes[b][1]
+                if geom_b is None:
+                    continue
+                if not self.bitmask(geom_a, geom_b) or (min(a, b), max(a, b)) in excluded:
+                    scene.exclude_collision(index[a], index[b])
+                else:
+                    self.contact_options(geom_a, geom_b, warned_friction)
+        if warned_friction:
+            shown = "; ".join(warned_friction[:5]) + (f"; and {len(warned_friction) - 5} more"
+                                                      if len(warned_friction) > 5 else "")
+            self.warn("friction", f"MuJoCo mixes a pair's friction with max(), jaxrb with sqrt(product): {shown}")
 
-    def friction_warnings(self, scene):
-        bodies = [(repr(body.name), body.friction) for body in scene._bodies]
-        planes = [(f"plane {index}", plane.friction) for index, plane in enumerate(scene._planes)]
-        pairs = [(a, b) for index, a in enumerate(bodies) for b in bodies[:index]] + \
-                [(a, b) for a in bodies for b in planes]
-        differ = [f"{a[0]} ({a[1]:g}) with {b[0]} ({b[1]:g}): MuJoCo {max(a[1], b[1]):g}, "
-                  f"jaxrb {math.sqrt(a[1] * b[1]):.4g}"
-                  for a, b in pairs if abs(max(a[1], b[1]) - math.sqrt(a[1] * b[1])) > 1e-12]
-        if differ:
-            shown = "; ".join(differ[:5]) + (f"; and {len(differ) - 5} more" if len(differ) > 5 else "")
-            self.warn("friction", "MuJoCo combines a pair's friction with max(), jaxrb with "
-                      f"sqrt(product), so these pairs differ: {shown}")
+    def contact_options(self, g1, g2, warned_friction):
+        m = self.m
+        mu1, mu2 = float(m.geom_friction[g1][0]), float(m.geom_friction[g2][0])
+        if abs(max(mu1, mu2) - math.sqrt(mu1 * mu2)) > 1e-12:
+            warned_friction.append(f"{self.element('geom', g1)}–{self.element('geom', g2)} "
+                                   f"{max(mu1, mu2):g} against {math.sqrt(mu1 * mu2):g}")
+        for g in (g1, g2):
+            if m.geom_margin[g] or m.geom_gap[g]:
+                self.warn(self.element("geom", g), "margin/gap: jaxrb's contact margin is the build's "
+                                                   "contact_margin, one for the scene")
+            if m.geom_condim[g] not in (1, 3):
+                self.warn(self.element("geom", g), f"condim {m.geom_condim[g]}: jaxrb has no torsional or "
+                                                   "rolling friction")
+
+    def build_options(self, scene) -> dict:
+        m = self.m
+        dt = float(m.opt.timestep)
+        options = {"dt": dt}
+        integrator = int(m.opt.integrator)
+        if integrator == 1:
+            options["integrator"] = "rk4"
+        elif integrator != 0:
+            self.warn("option", f"integrator {['Euler', 'RK4', 'implicit', 'implicitfast'][integrator]}: jaxrb "
+                                "steps it with its semi-implicit Euler (MuJoCo's Euler, implicit joint damping)")
+        if self.disabled("contact"):
+            options["contact"] = "none"
+        default_solref = np.array([0.02, 1.0])
+        if np.any(np.abs(m.geom_solref - default_solref) > 1e-12) or np.any(m.opt.o_solref != default_solref):
+            self.warn("solref", "MuJoCo's contact softness is not mapped: jaxrb's soft contacts take "
+                                "rb.Impulse(hertz=...) (default a quarter of the substep rate)")
+        return options
 
 
-def scene_from_mjcf(text: str, source: Optional[str] = None) -> SceneFile:
-    """Read MuJoCo MJCF text (the subset described in this module's docstring).
+def _finish(found: SceneFile) -> SceneFile:
+    """Substeps and integrator once the scene knows whether it can touch anything."""
+    options = found.build_options
+    model, _, _ = found.scene.build(dt=options["dt"], contact=options.get("contact"))
+    can_touch = model.num_contacts > 0
+    tree = model.joints
+    if options.get("integrator") == "rk4" and (can_touch or (tree is not None and (
+            tree.equality_kind or tree.friction_dofs))):
+        options["integrator"] = "midpoint"
+        found.warnings.append("option: integrator RK4: this scene has contact, loop closures or joint friction, "
+                              "which jaxrb's rk4 does not take; it steps with jaxrb's 'midpoint' (second order in "
+                              "the Coriolis terms; closer to RK4 than MuJoCo's Euler)")
+    if can_touch:
+        options["substeps"] = max(1, math.ceil(options["dt"] / MAX_SUBSTEP - 1e-9))
+    return found
+
+
+def scene_from_mjmodel(model, source: str = "mjcf", *, floating_base: bool = False) -> SceneFile:
+    """Turn a compiled ``mujoco.MjModel`` into a :class:`~jaxrb.files.common.SceneFile`.
+
+    Args:
+        model: the compiled MuJoCo model.
+        source: name used in messages.
+        floating_base: make the world's direct children without joints free
+            bodies; their 7 and 6 numbers then lead qpos and qvel. (A URDF
+            compiled by MuJoCo has its root link fused into the world already:
+            read the file with :func:`scene_from_path` or
+            :func:`scene_from_mjcf`, which free it before compiling.)
+
+    Returns:
+        A SceneFile whose ``build_options`` hold ``dt`` (MuJoCo's timestep),
+        the integrator, ``contact`` where disabled and ``substeps`` (each at
+        most :data:`MAX_SUBSTEP` where anything can touch), and whose
+        ``warnings`` list what was approximated or skipped.
+
+    Raises:
+        ValueError: naming the element for anything jaxrb cannot represent.
+    """
+    converter = _Converter(_mujoco(), model, source, floating_base)
+    return _finish(converter.convert())
+
+
+def _compile(mujoco, load, floating_base):
+    """The compiled model from ``load(mujoco.MjSpec)`` (``from_string`` or ``from_file``); with
+    ``floating_base``, the world's direct children without joints get a free joint first, so MuJoCo's
+    compiler neither fuses them into the world (a URDF's ``fusestatic``) nor fixes them."""
+    spec = load(mujoco.MjSpec)
+    if floating_base:
+        for body in spec.worldbody.bodies:
+            if not body.joints:
+                body.add_freejoint()
+    return spec.compile()
+
+
+def scene_from_mjcf(text: str, source: Optional[str] = None, *, floating_base: bool = False) -> SceneFile:
+    """Read MJCF (or URDF) text through MuJoCo's compiler (see the module docs).
 
     Args:
         text: the XML document.
         source: name used in messages; default ``"mjcf"``.
+        floating_base: give the world's direct children without joints a
+            free joint before MuJoCo compiles the model (a URDF's root link is
+            otherwise fixed to the world, and fused into it); their 7 and 6
+            numbers then lead qpos and qvel.
 
     Returns:
-        A :class:`SceneFile` with ``build_options`` ``dt`` (MuJoCo's timestep),
-        ``integrator="semi_implicit"``, ``contact="impulse"`` and ``substeps``
-        (each substep <= 1 ms), and ``warnings`` listing what was ignored.
+        A :class:`SceneFile`.
 
     Raises:
-        ValueError: naming the element and attribute for anything the importer
-            cannot represent faithfully.
+        ValueError: MuJoCo's own compile error, or an element jaxrb cannot represent.
     """
-    return _Mjcf(source or "mjcf").read(text)
+    mujoco = _mujoco()
+    source = source or "mjcf"
+    try:
+        model = _compile(mujoco, lambda spec: spec.from_string(text), floating_base)
+    except ValueError as error:
+        raise ValueError(f"{source}: MuJoCo cannot compile it: {error}") from None
+    return scene_from_mjmodel(model, source)
 
 
-# --------------------------------------------------------------------------- #
-# Quaternion helpers (w, x, y, z), host-side NumPy
-# --------------------------------------------------------------------------- #
+def scene_from_path(path, *, floating_base: bool = False) -> SceneFile:
+    """Read an MJCF or URDF file through MuJoCo's compiler (includes and meshes relative to it).
 
-def _quat_multiply(a, b):
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw])
+    Args:
+        path: the file.
+        floating_base: see :func:`scene_from_mjcf`.
 
+    Returns:
+        A :class:`SceneFile`.
 
-def _rotation(quat):
-    w, x, y, z = np.asarray(quat, dtype=np.float64) / np.linalg.norm(quat)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-def _matrix_to_quat(matrix):
-    """Unit quaternion of a rotation matrix (Shepperd: divide by the largest component)."""
-    m = matrix
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    candidates = [trace, m[0, 0], m[1, 1], m[2, 2]]
-    largest = int(np.argmax(candidates))
-    if largest == 0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        quat = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif largest == 1:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        quat = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif largest == 2:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        quat = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        quat = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    quat = np.array(quat)
-    return quat / np.linalg.norm(quat)
-
-
-def _quat_between_z_and(direction):
-    """The smallest rotation taking +z to the unit vector ``direction`` (3,)."""
-    z = np.array([0.0, 0.0, 1.0])
-    cosine = float(z @ direction)
-    if cosine < -1.0 + 1e-12:
-        return np.array([0.0, 1.0, 0.0, 0.0])  # half turn about x
-    quat = np.concatenate([[1.0 + cosine], np.cross(z, direction)])
-    return quat / np.linalg.norm(quat)
+    Raises:
+        ValueError: MuJoCo's own compile error, or an element jaxrb cannot represent.
+    """
+    mujoco = _mujoco()
+    try:
+        model = _compile(mujoco, lambda spec: spec.from_file(os.fspath(path)), floating_base)
+    except ValueError as error:
+        raise ValueError(f"{os.fspath(path)}: MuJoCo cannot compile it: {error}") from None
+    return scene_from_mjmodel(model, os.fspath(path))
