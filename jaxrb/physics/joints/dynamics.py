@@ -158,9 +158,14 @@ def smooth_friction(tree, params: Params, qvel):
 
 
 def actuator_force(tree, params: Params, qpos, qvel, controls):
-    """(nv,) the actuators' joint forces for ``controls`` (na,), MuJoCo's gain/bias law with clamps."""
+    """The actuators' joint forces for ``controls`` (na,), MuJoCo's gain/bias law with clamps.
+
+    Returns:
+        (force (nv,), slope (nv,)): the forces, and each dof's ∂force/∂q̇ from
+        the velocity bias b2·gear² where the force is inside its clamp (0 elsewhere).
+    """
     if not tree.num_actuators:
-        return jnp.zeros_like(qvel)
+        return jnp.zeros_like(qvel), jnp.zeros_like(qvel)
     joints = np.asarray(tree.actuator_joint)
     dof = np.asarray(tree.dof_adr)[joints]
     q = qpos[np.asarray(tree.qpos_adr)[joints]]
@@ -171,14 +176,18 @@ def actuator_force(tree, params: Params, qpos, qvel, controls):
         ctrl = jnp.where(ctrl_limited, jnp.clip(ctrl, params.ctrl_range[:, 0], params.ctrl_range[:, 1]), ctrl)
     bias = params.actuator_bias
     force = params.actuator_gain * ctrl + bias[:, 0] + bias[:, 1] * gear * q + bias[:, 2] * gear * qvel[dof]
+    slope = bias[:, 2] * gear * gear
     force_limited = np.asarray(tree.force_limited)
     if force_limited.any():
-        force = jnp.where(force_limited, jnp.clip(force, params.force_range[:, 0], params.force_range[:, 1]), force)
-    return jnp.zeros_like(qvel).at[dof].add(gear * force)
+        low, high = params.force_range[:, 0], params.force_range[:, 1]
+        slope = jnp.where(force_limited & ((force < low) | (force > high)), 0.0, slope)
+        force = jnp.where(force_limited, jnp.clip(force, low, high), force)
+    spread = lambda values: jnp.zeros_like(qvel).at[dof].add(values)
+    return spread(gear * force), spread(slope)
 
 
 def smooth_force(model, params: Params, qpos, qvel, controls=None, applied=None, kin=None):
-    """(nv,) the forces the implicit integrators linearise: −c(q, q̇), springs, applied loads, actuators.
+    """(nv,) everything but the implicit terms: −c(q, q̇) (with gravity), springs, applied loads, actuators.
 
     Args:
         model: the Model (``joints`` the tree).
@@ -190,24 +199,32 @@ def smooth_force(model, params: Params, qpos, qvel, controls=None, applied=None,
         kin: the Kinematics of ``qpos`` if already computed.
 
     Returns:
-        (nv,) generalized force.
+        (force (nv,), actuator slope (nv,)): the generalized force and
+        :func:`actuator_force`'s slope.
     """
     tree = model.joints
     kin = kinematics(tree, params, qpos) if kin is None else kin
     force = -bias_force(tree, params, kin, world_inertia(kin, params), qvel) + spring_force(tree, params, qpos)
     if applied is not None:
         force = force + generalized(kin, *applied)
+    slope = jnp.zeros_like(qvel)
     if controls is not None:
-        force = force + actuator_force(tree, params, qpos, qvel, controls)
-    return force
+        actuated, slope = actuator_force(tree, params, qpos, qvel, controls)
+        force = force + actuated
+    return force, slope
 
 
-def forces(model, params: Params, kin: Kinematics, qpos, qvel, h, controls=None, applied=None,
-           integrator="euler") -> Forces:
-    """Every term of the equations of motion at (qpos, qvel).
+def forces(model, params: Params, kin: Kinematics, qpos, qvel, h, controls=None, applied=None) -> Forces:
+    """Every term of the equations of motion at (qpos, qvel), split as ``model.integrator`` takes them.
+
+    Joint damping, the limits and smooth friction are implicit (in ``damping``
+    and ``stiffness``) for the velocity-first integrators; ``midpoint`` and
+    ``implicit`` take the actuators' velocity gains implicitly too (MuJoCo's
+    Euler, ``semi_implicit``, keeps them explicit); ``rk4`` takes everything
+    explicitly (``damping`` and ``stiffness`` are then zero, folded into ``force``).
 
     Args:
-        model: the Model (``joints`` the tree).
+        model: the Model (``joints`` the tree, ``integrator``).
         params: Params.
         kin: the Kinematics of ``qpos``.
         qpos: (nq,) coordinates; qvel: (nv,) velocities.
@@ -215,24 +232,25 @@ def forces(model, params: Params, kin: Kinematics, qpos, qvel, h, controls=None,
         controls: (na,) actuator inputs, or None (zero).
         applied: (force (n, 3), torque (n, 3)) world loads at the centres of
             mass (constant ones and the step's Wrench), or None.
-        integrator: ``"euler"`` (damping, smooth friction and limits
-            implicit) or ``"rk4"`` (all explicit: ``damping`` and
-            ``stiffness`` come back folded into ``force``).
 
     Returns:
         :class:`Forces`.
     """
     tree = model.joints
+    explicit = model.integrator == "rk4"
     matrix = mass_matrix(params, kin, world_inertia(kin, params))
-    force = smooth_force(model, params, qpos, qvel, controls, applied, kin)
+    force, actuator_slope = smooth_force(model, params, qpos, qvel, controls, applied, kin)
     damping = params.joint_damping
+    if model.integrator in ("midpoint", "implicit"):
+        damping = damping - actuator_slope  # force already holds the explicit b2 q̇ term, as it holds −D q̇
     if tree.friction_dofs and tree.joint_friction == "smooth":
         friction, slope = smooth_friction(tree, params, qvel)
         force, damping = force + friction, damping + slope
-    stiffness, limit_damping, offset = limit_terms(tree, params, qpos, qvel, jnp.diagonal(matrix), h, integrator)
+    stiffness, limit_damping, offset = limit_terms(tree, params, qpos, qvel, jnp.diagonal(matrix), h,
+                                                   "rk4" if explicit else "euler")
     force = force - params.joint_damping * qvel - limit_damping * qvel - stiffness * offset
     damping = damping + limit_damping
-    if integrator == "rk4":
+    if explicit:
         return Forces(mass_matrix=matrix, force=force, damping=jnp.zeros_like(damping),
                       stiffness=jnp.zeros_like(stiffness), offset=offset)
     return Forces(mass_matrix=matrix, force=force, damping=damping, stiffness=stiffness, offset=offset)
