@@ -2,7 +2,8 @@
 
 The report committed as docs/benchmarks.md: every section of
 ``python -m jaxrb.bench`` and the two that run other engines, ``peers``
-(:mod:`benchmarks.peers`) and ``real_data`` (:mod:`benchmarks.real_data`), in
+(:mod:`benchmarks.peers`), ``real_data`` (:mod:`benchmarks.real_data`) and
+``double_pendulum`` (:mod:`benchmarks.double_pendulum`), in
 the order of :data:`SECTIONS`. Run it from the repository's root with the
 ``peers`` extra installed (``pip install -e ".[peers]"``); an engine that is
 missing is a note in the report, not a failure. ``--only peers real_data``
@@ -21,8 +22,8 @@ import sys
 from jaxrb.bench import __main__ as package_report
 
 #: Every section, in report order: jaxrb's own (jaxrb.bench.__main__.SECTIONS) and the peers'.
-SECTIONS = ("real_data", "speed_error", "hard_cases", "peers", "tumbling", "throughput", "contact", "gradients",
-            "smoothing")
+SECTIONS = ("real_data", "double_pendulum", "speed_error", "hard_cases", "peers", "tumbling", "throughput",
+            "contact", "gradients", "smoothing")
 
 
 def _run_peers(quick: bool, out_dir: str, log):
@@ -37,6 +38,12 @@ def _run_real_data(quick: bool, out_dir: str, log):
     return real_data.real_data_section(real_data.QUICK if quick else real_data.FULL, log)
 
 
+def _run_double_pendulum(quick: bool, out_dir: str, log):
+    from benchmarks import double_pendulum
+
+    return double_pendulum.double_pendulum_section(double_pendulum.QUICK if quick else double_pendulum.FULL, log)
+
+
 #: The sections this folder adds to jaxrb's report.
 EXTRA = {
     "peers": package_report.Section(
@@ -49,6 +56,12 @@ EXTRA = {
         "400 measured cube tosses, half fitted, half scored; MuJoCo and Bullet with the publishers' "
         "parameters (examples/cube_tosses)",
         _run_real_data),
+    "double_pendulum": package_report.Section(
+        "Real data: a double pendulum beside its publishers' model",
+        "6 measured records of the DFKI double pendulum, predicted 0.05, 0.2 and 0.5 s ahead from the measured "
+        "state and torques (examples/double_pendulum): jaxrb's fitted scene against the publishers' identified "
+        "plant, leave-one-record-out, and the noise floor",
+        _run_double_pendulum),
 }
 
 
@@ -65,7 +78,8 @@ def main(argv=None) -> int:
         argv, sections=SECTIONS, extra=EXTRA, prog="python -m benchmarks",
         description="The committed benchmark report (docs/benchmarks.md): jaxrb's sections (python -m "
                     "jaxrb.bench) and, side by side, other engines (peers: MuJoCo, MJX, Brax, Jax2D, pymunk; "
-                    "real_data: measured cube tosses beside MuJoCo and Bullet). Needs the peers extra for "
+                    "real_data: measured cube tosses beside MuJoCo and Bullet; double_pendulum: a real double pendulum beside "
+                    "its publishers' model). Needs the peers extra for "
                     "the other engines. Prints Markdown and writes DIR/report.md.")
 
 
