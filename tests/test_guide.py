@@ -16,7 +16,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "guide"
 TASK_PAGES = ("simulate.md", "contact-and-integrators.md", "gradients.md", "fitting.md", "sweeps.md",
-              "rendering.md", "mjcf.md")
+              "rendering.md", "mjcf.md", "joints.md")
 
 
 def python_blocks(path):

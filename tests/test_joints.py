@@ -7,6 +7,7 @@ constraints' own definitions (a four-bar's loop stays closed, a limit holds
 an overload). Float64 throughout (conftest enables x64).
 """
 
+import dataclasses
 import math
 
 import jax
@@ -296,3 +297,78 @@ def test_summary_lists_the_joint_kinds_compiled_in():
     scene = rb.Scene(dim=3)
     scene.add_body(rb.Sphere(0.1), mass=1.0)
     assert "joints" not in scene.build(dt=0.01)[0].summary()  # no joint code in a free-body scene
+
+
+# --- gradients ---------------------------------------------------------------------------------------------------
+
+def _mechanism(joint_friction="smooth", integrator="midpoint"):
+    """A slider carrying a hinged, limited, sprung, damped and servoed arm, with a second hinge below it."""
+    scene = rb.Scene(dim=3, gravity=(0.0, 0.0, -G))
+    cart = scene.add_body(rb.Box(half_extents=(0.1, 0.1, 0.05)), mass=2.0)
+    arm = link(scene, (0, 0, 0), (0.3, 0, -0.3))
+    tip = link(scene, (0.3, 0, -0.3), (0.3, 0, -0.6), mass=0.5)
+    slide = scene.add_joint(rb.Slider(axis=(1, 0, 0)), cart, damping=0.5, frictionloss=0.2)
+    hinge = scene.add_joint(rb.Hinge(axis=(0, 1, 0), anchor=(0, 0, 0)), arm, cart, range=(-0.6, 0.6),
+                            stiffness=3.0, springref=0.2, damping=0.05, armature=0.01, frictionloss=0.05)
+    scene.add_joint(rb.Hinge(axis=(0, 1, 0), anchor=(0.3, 0, -0.3)), tip, arm, damping=0.02)
+    scene.add_actuator(slide, "motor", gear=2.0)
+    scene.add_actuator(hinge, "position", kp=5.0, kv=0.3, forcerange=(-2.0, 2.0))
+    model, params, state = scene.build(dt=0.01, integrator=integrator, joint_friction=joint_friction,
+                                       contact="none")
+    state = rb.joints.set_qpos_qvel(model, params, state, jnp.asarray([0.0, 0.5, -0.4]),
+                                    jnp.asarray([0.3, 1.0, -2.0]))
+    return model, params, state
+
+
+JOINT_FIELDS = ("mass", "inertia", "com_offset", "parent_offset", "parent_rotation", "joint_pos", "joint_axis",
+                "joint_ref", "joint_range", "joint_stiffness", "joint_springref", "joint_damping", "joint_armature",
+                "joint_frictionloss", "joint_friction_velocity", "limit_hertz", "limit_damping_ratio",
+                "actuator_gear", "actuator_gain", "actuator_bias", "force_range", "gravity")
+
+
+@pytest.fixture(scope="module")
+def mechanism_gradient():
+    """Value and gradient of a 0.2 s rollout's loss of the mechanism, jitted once."""
+    model, params, state = _mechanism()
+    controls = jnp.stack([jnp.full(20, 1.5), jnp.linspace(-0.5, 0.8, 20)], axis=-1)
+
+    def loss(params):
+        traj = rb.rollout(rb.make_step(model), state, params, 20, controls=controls)
+        return jnp.sum(traj.qpos[-1] ** 2) + 0.1 * jnp.sum(traj.qvel[-1] ** 2) + jnp.sum(traj.pos[-1] ** 2)
+
+    return params, jax.jit(loss), jax.jit(jax.grad(loss))
+
+
+@pytest.mark.parametrize("field", JOINT_FIELDS)
+def test_joint_params_gradients_match_central_differences(mechanism_gradient, field):
+    """d loss / d field along a random direction: autodiff against central differences, relative 1e-4."""
+    params, loss, grad = mechanism_gradient
+    value = getattr(params, field)
+    direction = jnp.asarray(np.random.default_rng(sorted(JOINT_FIELDS).index(field)).normal(size=np.shape(value)))
+    if field == "inertia":
+        direction = direction + jnp.swapaxes(direction, -1, -2)
+    scale = 1e-6 * max(1.0, float(jnp.max(jnp.abs(value))))
+    # dataclasses.replace: a zero stiffness or armature nudged by -1e-6 is outside Params' checked range.
+    shifted = lambda sign: loss(dataclasses.replace(params, **{field: value + sign * scale * direction}))
+    central = float(shifted(1.0) - shifted(-1.0)) / (2 * scale)
+    exact = float(jnp.sum(getattr(grad(params), field) * direction))
+    assert np.isfinite(exact)
+    assert abs(exact - central) <= 1e-4 * max(abs(central), 1e-3), (exact, central)
+
+
+def test_gradients_are_finite_at_rest_on_a_limit_and_in_stick_slip():
+    """The rod pressed into its limit, starting at rest, with exact Coulomb friction sticking and slipping."""
+    scene = rb.Scene(dim=3, gravity=(0.0, 0.0, -G))
+    rod = link(scene, (0, 0, 0), (0, 0, -1.0))
+    joint = scene.add_joint(rb.Hinge(axis=(0, 1, 0), anchor=(0, 0, 0)), rod, range=(-0.1, 0.1), frictionloss=0.8)
+    scene.add_actuator(joint, "motor")
+    model, params, state = scene.build(dt=0.01)
+    state = rb.joints.set_qpos_qvel(model, params, state, jnp.asarray([0.1]), jnp.zeros(1))
+    torques = jnp.concatenate([jnp.full((10, 1), 30.0), jnp.full((10, 1), 0.5), jnp.full((10, 1), -3.0)])
+
+    def loss(params):
+        return jnp.sum(rb.rollout(rb.make_step(model), state, params, 30, controls=torques).qpos ** 2)
+
+    gradient = jax.grad(loss)(params)
+    for field in ("mass", "joint_frictionloss", "joint_range", "limit_hertz", "joint_damping", "joint_armature"):
+        assert np.all(np.isfinite(np.asarray(getattr(gradient, field)))), field

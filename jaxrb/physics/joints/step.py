@@ -198,7 +198,7 @@ def _rk4_step(model, params, qpos, qvel, h, controls, loads):
     for stage in range(3):
         turn = h * a[stage] * tangents[-1]
         stage_qvel = qvel + h * a[stage] * rates[-1]
-        rates.append(acceleration(integrate_positions(tree, qpos, turn / h, h), stage_qvel))
+        rates.append(acceleration(integrate_positions(tree, qpos, turn, 1.0), stage_qvel))
         tangents.append(corrected(stage_qvel, turn))
     new_qvel = qvel + h * sum(weight * rate for weight, rate in zip(b, rates))
     new_qpos = integrate_positions(tree, qpos, sum(weight * t for weight, t in zip(b, tangents)), h)
