@@ -277,6 +277,28 @@ def soft_parameters(params: Params, h):
     return (*soft_coefficients(params.contact_hertz, params.contact_damping_ratio, h), params.max_push_velocity)
 
 
+def collision_impulse(vn, old, restitution, normal_mass, active, threshold):
+    """A contact's normal impulse after it collides now: Newton's j = −(1 + e)·m_n·v_n.
+
+    For a contact closing faster than ``threshold`` at this moment (v_n <
+    −threshold), the impulse that leaves it at −e·v_n; elsewhere ``old``.
+    Applied contact by contact, in sweeps, before the solver's passes, it
+    carries an impact through a row of touching bodies one contact at a time
+    (a Newton's cradle), which the passes' simultaneous solve followed by
+    :func:`bounce_impulse` cannot: they share the momentum among all the
+    bodies first. Any shapes, all alike.
+
+    Args:
+        vn: normal speeds now; old: accumulated normal impulses;
+            restitution, normal_mass, active: the rows'; threshold: () m/s.
+
+    Returns:
+        The new accumulated normal impulses.
+    """
+    hit = active & (vn < -threshold)
+    return jnp.where(hit, jnp.maximum(old - (1.0 + restitution) * normal_mass * vn, 0.0), old)
+
+
 def bounce_impulse(vn, old, approach, restitution, normal_mass, active, threshold):
     """A contact's normal impulse after its restitution update: outgoing speed −e·v_approach.
 

@@ -31,7 +31,7 @@ from jaxrb.model.struct import pytree_dataclass
 from jaxrb.model.types import Array, Params
 from jaxrb.physics.collision.pairs import round_sides, row_taker, shape_centres
 from jaxrb.physics.contact.common import carried_impulses, clamp_to_disc, tangent_basis
-from jaxrb.physics.contact.impulse import _normal_impulse, bounce_impulse, soft_coefficients
+from jaxrb.physics.contact.impulse import _normal_impulse, bounce_impulse, collision_impulse, soft_coefficients
 from jaxrb.physics.joints.dynamics import Factor, factor, solve
 from jaxrb.physics.joints.kinematics import Kinematics, integrate_positions, kinematics, point_jacobian
 
@@ -319,6 +319,32 @@ def _solve_tangents(block, speed):
     a, b, c, d = block[0, 0] + scale, block[0, 1], block[1, 0], block[1, 1] + scale
     determinant = a * d - b * c
     return jnp.stack([d * speed[0] - b * speed[1], a * speed[1] - c * speed[0]]) / determinant
+
+
+def collision_pass(params: Params, sys: System, rows: ContactRows, qvel, h):
+    """Impacts carried contact by contact (:func:`~jaxrb.physics.contact.impulse.collision_impulse`).
+
+    A contact collides in the substep its gap closes (separation + h·v_n ≤ 0),
+    not while a speculative contact is still coming. Two sweeps, in the rows'
+    order and back, so an impact crosses a row of touching bodies from either
+    end within one substep. The impacts' impulses are not accumulated into the
+    rows' (warm-started) impulses: they act once, and the passes then see the
+    bodies leaving each other.
+
+    Returns:
+        (nv,) q̇ after the sweeps.
+    """
+    def one_contact(qvel, row):
+        jac, push, inverse, restitution, active, separation = row
+        speed = jac[0] @ qvel
+        impulse = collision_impulse(speed, 0.0, restitution, _inverse_mass(inverse[0, 0]),
+                                    active & (separation + h * speed <= 0.0), params.bounce_threshold)
+        return qvel + push[:, 0] * impulse, None
+
+    rows_in_order = (sys.contact_jac, sys.contact_push, sys.contact_inverse, rows.restitution, rows.active,
+                     sys.separation)
+    qvel, _ = jax.lax.scan(one_contact, qvel, rows_in_order)
+    return jax.lax.scan(one_contact, qvel, rows_in_order, reverse=True)[0]
 
 
 def restitution_pass(params: Params, sys: System, rows: ContactRows, qvel, impulses):

@@ -140,6 +140,10 @@ def _constrained_update(model, params, kin, qpos, qvel, found, impulses, h, rows
         return integrate_positions(model.joints, qpos, qvel, h), qvel, impulses
     sys = constraints.system(model, params, kin, found, h, qvel, rows)
     qvel = constraints.warm_start(sys, qvel, impulses)
+    if rows is not None:
+        # Impacts first, contact by contact; restitution later bounces what still approached after them.
+        qvel = constraints.collision_pass(params, sys, rows, qvel, h)
+        sys = sys.replace(approach=sys.contact_jac[:, 0] @ qvel)
 
     def passes(qvel, impulses, count, soft):
         one = lambda _, carry: constraints.solve_pass(model, params, sys, rows, *carry, h, soft)
