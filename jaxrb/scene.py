@@ -410,11 +410,13 @@ class Scene:
         each hinge and slide reads ``ref``. Several joints on one body compose
         in the order added (all to the same parent). A body without joints
         and without parent is free. Collisions between a body and its parent
-        are off, as in MuJoCo. 3D scenes only.
+        are off, as in MuJoCo. In 2D, hinges turn about the plane's normal
+        (give no axis), sliders take a (2,) axis, anchors are (2,), and a free
+        body's coordinates are its frame's x, y and angle.
 
         Args:
-            kind: ``rb.Hinge(axis, anchor)``, ``rb.Slider(axis)``, ``rb.Ball(anchor)``,
-                ``rb.Fixed()`` or ``rb.Free()``.
+            kind: ``rb.Hinge(axis, anchor)``, ``rb.Slider(axis)``, ``rb.Ball(anchor)``
+                (3D), ``rb.Fixed()`` or ``rb.Free()``.
             child: index of the body the joint moves.
             parent: index of the body it is attached to, or None for the world.
             range: (2,) lower and upper limit of a hinge (rad) or slide (m);
@@ -435,9 +437,6 @@ class Scene:
         index = len(self._joints)
         name = name if name is not None else f"joint{index}"
         check = _Fields(f"joint {index} ({name!r})")
-        if self.dim != 3:
-            check.fail("kind", "joints are 3D only for now: build 2D mechanisms in a 3D scene with hinges "
-                               "about z")
         if type(kind) not in JOINT_KINDS:
             check.fail("kind", f"must be one of rb.{', rb.'.join(cls.__name__ for cls in JOINT_KINDS)}, "
                                f"got {kind!r}")
@@ -450,12 +449,20 @@ class Scene:
         if kind_name == "free" and parent != -1:
             check.fail("parent", "must be None (the world) for a free joint, as in MuJoCo")
         axis = anchor = None
-        if kind_name in ("hinge", "slide"):
+        if self.dim == 2 and kind_name == "ball":
+            check.fail("kind", "a ball joint is 3D only; a 2D scene's hinges turn about the plane's normal")
+        if self.dim == 2 and kind_name == "hinge" and tuple(kind.axis) != (0.0, 0.0, 1.0):
+            check.fail("axis", "leave it out in 2D: a hinge of the plane turns about its normal, z")
+        if kind_name == "hinge":
             axis = check.array("axis", kind.axis, (3,))
-            if np.linalg.norm(axis) < 1e-12:
-                check.fail("axis", "must be non-zero")
+        elif kind_name == "slide":
+            axis = np.append(check.array("axis", kind.axis, (2,)), 0.0) if self.dim == 2 else \
+                check.array("axis", kind.axis, (3,))
+        if axis is not None and np.linalg.norm(axis) < 1e-12:
+            check.fail("axis", "must be non-zero")
         if kind_name in ("hinge", "ball") and kind.anchor is not None:
-            anchor = check.array("anchor", kind.anchor, (3,))
+            anchor = check.array("anchor", kind.anchor, (self.dim,))
+            anchor = np.append(anchor, 0.0) if self.dim == 2 else anchor
         limited = range is not None
         if limited:
             if kind_name not in ("hinge", "slide"):
@@ -495,16 +502,16 @@ class Scene:
         index = len(self._equalities)
         name = name if name is not None else f"equality{index}"
         check = _Fields(f"equality {index} ({name!r})")
-        if self.dim != 3:
-            check.fail("kind", "loop closures are 3D only for now")
         if type(kind) not in EQUALITY_KINDS:
             check.fail("kind", f"must be rb.Connect(anchor) or rb.Weld(), got {kind!r}")
         body_a = self._body_index(check, "body_a", body_a, allow_world=False)
         body_b = self._body_index(check, "body_b", body_b, allow_world=True)
         if body_a == body_b:
             check.fail("body_b", f"is body_a ({body_a}) itself; a closure joins two bodies")
-        anchor = check.array("anchor", kind.anchor, (3,)) if isinstance(kind, EQUALITY_KINDS_BY_NAME["connect"]) \
-            else None
+        anchor = None
+        if isinstance(kind, EQUALITY_KINDS_BY_NAME["connect"]):
+            anchor = check.array("anchor", kind.anchor if self.dim == 3 else tuple(kind.anchor)[:2], (self.dim,))
+            anchor = np.append(anchor, 0.0) if self.dim == 2 else anchor
         self._equalities.append(EqualitySpec(name=name, kind=EQUALITY_KINDS[type(kind)], body_a=body_a,
                                              body_b=body_b, anchor=anchor))
         self._equality_args.append(_given_arguments(arguments, Scene.add_equality))
@@ -653,25 +660,32 @@ class Scene:
     def _joint_tree(self, integrator, joint_friction):
         """(tree, arrays, qpos0) of the scene's joints, or Nones without joints (see ``build``)."""
         if not (self._joints or self._equalities or self._actuators):
-            return None, None, None
+            return None, None, None, None
         check_option("joint_friction", joint_friction, JOINT_FRICTIONS)
         if integrator not in JOINT_INTEGRATORS:
             raise ValueError(f"scene.build: a scene with joints steps with integrator "
                              f"{', '.join(map(repr, JOINT_INTEGRATORS))}, got {integrator!r}")
         bodies = self._bodies
-        origins = [b.pos - _rotation_matrix(b.quat) @ b.com for b in bodies]
-        tree, arrays, qpos0 = build_tree([b.name for b in bodies], origins, [b.quat for b in bodies],
-                                         self._joints, self._equalities, self._actuators, joint_friction)
+        frames = [self._frame(b) for b in bodies]
+        tree, arrays, qpos0, free_roots = build_tree(
+            [b.name for b in bodies], [origin for origin, _ in frames], [quat for _, quat in frames], self._joints,
+            self._equalities, self._actuators, joint_friction, planar=self.dim == 2)
         for index, body in enumerate(bodies):
-            if tree.parent[index] >= 0 or not tree.body_joints[index] or \
-                    tree.joint_kind[tree.body_joints[index][0]] != "free":
-                if np.any(body.vel != 0.0) or np.any(body.angvel != 0.0):
-                    raise ValueError(f"body {index} ({body.name!r}): fields 'vel' and 'angvel' must be zero on a "
-                                     "body with joints; set joint velocities with rb.joints.set_qpos_qvel")
+            if index not in free_roots and (np.any(body.vel != 0.0) or np.any(body.angvel != 0.0)):
+                raise ValueError(f"body {index} ({body.name!r}): fields 'vel' and 'angvel' must be zero on a "
+                                 "body with joints; set joint velocities with rb.joints.set_qpos_qvel")
         if integrator == "rk4" and (tree.equality_kind or (tree.friction_dofs and joint_friction == "exact")):
             raise ValueError("scene.build: integrator 'rk4' takes no loop closures and no exact joint friction "
                              "(use joint_friction='smooth', or the 'semi_implicit' integrator)")
-        return tree, arrays, qpos0
+        return tree, arrays, qpos0, free_roots
+
+    def _frame(self, body):
+        """A body's frame at the built pose, in 3D: (origin (3,), quat (4,)); a 2D body's lies in the x-y plane."""
+        if self.dim == 3:
+            return body.pos - _rotation_matrix(body.quat) @ body.com, body.quat
+        c, s = np.cos(body.angle), np.sin(body.angle)
+        origin = body.pos - np.array([[c, -s], [s, c]]) @ body.com
+        return np.append(origin, 0.0), np.array([np.cos(body.angle / 2), 0.0, 0.0, np.sin(body.angle / 2)])
 
     def _build(self, dt, integrator, orientation, contact, substeps, dtype, *, solver, iterations,
                relax_iterations, broadphase, broadphase_capacity, contact_margin, bounce_threshold, joint_friction,
@@ -690,7 +704,7 @@ class Scene:
         if integrator in JOINT_ONLY_INTEGRATORS and not jointed:
             raise ValueError(f"scene.build: integrator {integrator!r} is for scenes with joints; free bodies step "
                              "with 'semi_implicit' (the default), 'implicit_gyro', 'euler', 'rk4' or 'rk4_body'")
-        tree, joint_arrays, qpos0 = self._joint_tree(integrator, joint_friction)
+        tree, joint_arrays, qpos0, free_roots = self._joint_tree(integrator, joint_friction)
         if orientation is not None and integrator in QUATERNION_ODE_INTEGRATORS:
             raise ValueError(f"scene.build: 'orientation' does not apply to integrator {integrator!r}, "
                              "which integrates the quaternion ODE itself; leave it unset")
@@ -806,10 +820,11 @@ class Scene:
             state = state.replace(body_momentum=body_frame_momentum(params, state.quat, state.angvel),
                                   momentum_residual=jnp.zeros((num, 3), dtype=dtype))
         if tree is not None:
-            params, state = self._joint_params_state(model, params, state, joint_arrays, qpos0, substep, dtype)
+            params, state = self._joint_params_state(model, params, state, joint_arrays, qpos0, free_roots, substep,
+                                                     dtype)
         return model, params, state
 
-    def _joint_params_state(self, model, params, state, arrays, qpos0, substep, dtype):
+    def _joint_params_state(self, model, params, state, arrays, qpos0, free_roots, substep, dtype):
         """Params and State of a scene with joints: its joints' fields, and qpos/qvel with their read-outs."""
         tree = model.joints
         cap = LIMIT_HERTZ_CAP["rk4" if model.integrator == "rk4" else "euler"]
@@ -819,15 +834,20 @@ class Scene:
                                 limit_damping_ratio=as_array(1.0), equality_hertz=as_array(0.25 / substep),
                                 equality_damping_ratio=as_array(1.0))
         qvel, moving = np.zeros(tree.nv), set()
-        for index, body in enumerate(self._bodies):  # free roots keep their velocities, in MuJoCo's layout
-            joints = tree.body_joints[index]
-            if tree.parent[index] < 0 and joints and tree.joint_kind[joints[0]] == "free":
+        for index in free_roots:  # free bodies keep their velocities, in MuJoCo's layout
+            body, start = self._bodies[index], tree.dof_adr[tree.body_joints[index][0]]
+            if self.dim == 3:
                 rotation = _rotation_matrix(body.quat)
-                start = tree.dof_adr[joints[0]]
-                qvel[start:start + 3] = body.vel - np.cross(body.angvel, rotation @ body.com)
-                qvel[start + 3:start + 6] = rotation.T @ body.angvel
-                if np.any(qvel[start:start + 6]):
-                    moving.add(index)
+                velocities = np.concatenate([body.vel - np.cross(body.angvel, rotation @ body.com),
+                                             rotation.T @ body.angvel])
+            else:  # the frame origin's velocity in the plane, then the angular rate
+                c, s = np.cos(body.angle), np.sin(body.angle)
+                arm = np.array([[c, -s], [s, c]]) @ body.com
+                velocities = np.array([body.vel[0] + body.angvel * arm[1], body.vel[1] - body.angvel * arm[0],
+                                       body.angvel])
+            qvel[start:start + len(velocities)] = velocities
+            if np.any(velocities):
+                moving.add(index)
         state = state.replace(qpos=as_array(qpos0), qvel=as_array(qvel))
         # The bodies' poses and velocities are the read-outs of qpos0 and qvel already (the built pose),
         # unless a moving free root carries children: their velocities follow it.

@@ -412,3 +412,62 @@ def test_gymnasium_models_dropped_on_their_floor_come_to_rest(name):
     assert float(jnp.max(jnp.abs(last.vel))) < 0.05
     contacts = rb.detect_contacts(model, params, last)
     assert float(jnp.max(jnp.where(contacts.active, -contacts.dist, 0.0))) < 5e-3
+
+
+# --- 2D ----------------------------------------------------------------------------------------------------------
+
+def test_a_2d_double_pendulum_moves_as_the_same_one_in_3d():
+    """Hinges of the plane (about z) and the 3D scene's hinges about z: the same coordinates and positions;
+    each 2D angle is the sum of the hinge angles above it."""
+    def build(dim):
+        scene = rb.Scene(dim=dim, gravity=(0.0, -G) if dim == 2 else (0.0, -G, 0.0))
+        shape = rb.Box(half_extents=(0.02, 0.25)) if dim == 2 else None
+        inertia = 0.02 if dim == 2 else (0.02, 0.02, 0.02)
+        at = (lambda x, y: (x, y)) if dim == 2 else (lambda x, y: (x, y, 0.0))
+        upper = scene.add_body(shape, mass=1.0, inertia=inertia, pos=at(0.0, -0.25))
+        lower = scene.add_body(shape, mass=1.0, inertia=inertia, pos=at(0.0, -0.75))
+        hinge = (lambda anchor: rb.Hinge(anchor=anchor)) if dim == 2 else \
+            (lambda anchor: rb.Hinge(axis=(0, 0, 1), anchor=anchor))
+        scene.add_joint(hinge(at(0.0, 0.0)), upper)
+        scene.add_joint(hinge(at(0.0, -0.5)), lower, upper)
+        model, params, state = scene.build(dt=1.0 / 240.0, contact="none")
+        state = rb.joints.set_qpos_qvel(model, params, state, jnp.asarray([2.0, -1.0]), jnp.zeros(2))
+        return rb.rollout(rb.make_step(model), state, params, 240)
+
+    plane, space = build(2), build(3)
+    np.testing.assert_allclose(plane.qpos, space.qpos, atol=1e-12)
+    np.testing.assert_allclose(plane.pos, space.pos[..., :2], atol=1e-12)
+    np.testing.assert_allclose(plane.angle[-1], jnp.cumsum(plane.qpos[-1]), atol=1e-12)
+
+
+def test_a_2d_box_with_a_hinged_arm_lands_and_reads_its_coordinates():
+    """A free box (x, y, angle) carrying a limited arm falls on the ground: it lands on it and the coordinates
+    read back as the box's frame and the arm's hinge."""
+    scene = rb.Scene(dim=2)
+    scene.add_plane()
+    box = scene.add_body(rb.Box(half_extents=(0.2, 0.1)), mass=1.0, pos=(0.0, 1.0), angle=0.3, vel=(1.0, 0.0),
+                         angvel=2.0)
+    arm = scene.add_body(rb.Box(half_extents=(0.2, 0.05)), mass=0.5, pos=(0.4, 1.0), angle=0.3)
+    scene.add_joint(rb.Hinge(anchor=(0.2, 1.0)), arm, box, range=(-1.0, 1.0))
+    model, params, state = scene.build(dt=1.0 / 60.0)
+    np.testing.assert_allclose(state.qpos, [0.0, 1.0, 0.3, 0.0], atol=1e-12)
+    np.testing.assert_allclose(state.qvel, [1.0, 0.0, 2.0, 0.0], atol=1e-12)
+    traj = rb.rollout(rb.make_step(model), state, params, 180)
+    last = jax.tree_util.tree_map(lambda a: a[-1], traj)
+    qpos, _ = rb.joints.qpos_qvel(model, params, last)
+    assert bool(jnp.all(jnp.isfinite(traj.pos))) and float(traj.pos[:, :, 1].min()) > 0.04
+    assert abs(float(jnp.max(jnp.abs(last.vel)))) < 0.05
+    np.testing.assert_allclose(qpos[:2], last.pos[0], atol=1e-9)  # the box's frame is its centre
+    assert abs(float(qpos[3])) <= 1.0 + math.radians(1.0)
+
+
+def test_2d_free_bodies_read_and_write_their_coordinates():
+    scene = rb.Scene(dim=2)
+    scene.add_body(rb.Box(half_extents=(0.1, 0.2)), mass=1.0, pos=(1.0, 2.0), angle=0.5, vel=(0.3, -0.1),
+                   angvel=1.5, com=(0.05, 0.0))
+    model, params, state = scene.build(dt=0.01)
+    qpos, qvel = rb.joints.qpos_qvel(model, params, state)
+    np.testing.assert_allclose(qpos, [1.0, 2.0, 0.5], atol=1e-12)
+    back = rb.joints.set_qpos_qvel(model, params, state, qpos, qvel)
+    for name in ("pos", "angle", "vel", "angvel"):
+        np.testing.assert_allclose(getattr(back, name), getattr(state, name), atol=1e-12)

@@ -88,7 +88,7 @@ class Connect:
     """A loop closure: a point of body A stays on a point of body B (MJCF ``<equality connect>``).
 
     Attributes:
-        anchor: (3,) world point at the built pose, fixed in both bodies' frames.
+        anchor: (dim,) world point at the built pose, fixed in both bodies' frames.
     """
 
     anchor: tuple = (0.0, 0.0, 0.0)

@@ -56,7 +56,9 @@ A 3D mesh keeps the world quads it shows, (F, 4, 3), in ``artist.jaxrb_faces``
 ``artist.jaxrb_segments`` (mplot3d has no public getter for 3D data).
 
 Conventions: ``State.pos`` is each body's centre of mass; a shape is drawn in
-its own frame, whose origin is ``pos − R·Params.com_offset``. ``extent`` is
+its own frame, whose origin is ``pos − R·Params.com_offset`` (the body frame's),
+then moved and turned by the shape's pose in its body where it has one
+(``Model.shape_frames``: a MuJoCo geom's pos/quat). ``extent`` is
 ``(xmin, xmax, ymin, ymax)`` in 2D and ``(xmin, xmax, ymin, ymax, zmin,
 zmax)`` in 3D; without it the limits enclose every body (over all frames of an
 animation) and nearby planes, plus a margin. Without ``ax``, :func:`animate`

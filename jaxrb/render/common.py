@@ -10,7 +10,7 @@ from typing import Optional
 import jax
 import numpy as np
 
-from jaxrb.physics.collision.pairs import detect, shape_frame_arrays
+from jaxrb.physics.collision.pairs import detect
 from jaxrb.compile import jit
 from jaxrb.model.types import COLLIDING, RESTING, SEPARATING, Model, Params, State
 
@@ -159,7 +159,12 @@ def _rotation_matrices(model: Model, states: State) -> np.ndarray:
         angle = np.asarray(states.angle, dtype=np.float64)
         c, s = np.cos(angle), np.sin(angle)
         return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-    quat = np.asarray(states.quat, dtype=np.float64)
+    return _quaternion_matrices(states.quat)
+
+
+def _quaternion_matrices(quat) -> np.ndarray:
+    """(..., 3, 3) float64 rotation matrices of (..., 4) quaternions (w, x, y, z), on the host."""
+    quat = np.asarray(quat, dtype=np.float64)
     quat = quat / np.maximum(np.linalg.norm(quat, axis=-1, keepdims=True), 1e-300)
     w, x, y, z = np.moveaxis(quat, -1, 0)
     rows = [[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -192,7 +197,12 @@ class _Frames:
         offset = np.asarray(params.com_offset, dtype=np.float64)
         self.origin = self.com - np.einsum("fnij,nj->fni", self.rotation, offset)
         if model.shape_frames:  # shapes placed in their bodies: the shape's own frame
-            shift, turn = (np.asarray(a, np.float64) for a in shape_frame_arrays(model, np.float64))
+            # On the host in float64 (pairs.shape_frame_arrays makes JAX arrays, and
+            # float64 asked of JAX without x64 warns and truncates).
+            placed = [(np.zeros(3), (1.0, 0.0, 0.0, 0.0)) if frame is None else frame
+                      for frame in model.shape_frames]
+            shift = np.array([offset for offset, _ in placed], dtype=np.float64)
+            turn = _quaternion_matrices([quat for _, quat in placed])
             self.origin = self.origin + np.einsum("fnij,nj->fni", self.rotation, shift)
             self.rotation = self.rotation @ turn
         count = self.com.shape[0]

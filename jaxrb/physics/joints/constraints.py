@@ -30,7 +30,7 @@ from jaxrb.math import quaternion as quat_ops
 from jaxrb.model.struct import pytree_dataclass
 from jaxrb.model.types import Array, Params
 from jaxrb.physics.collision.pairs import round_sides, row_taker, shape_centres
-from jaxrb.physics.contact.common import carried_impulses, clamp_to_disc, tangent_basis
+from jaxrb.physics.contact.common import clamp_to_disc, tangent_basis
 from jaxrb.physics.contact.impulse import _normal_impulse, bounce_impulse, collision_impulse, soft_coefficients
 from jaxrb.physics.joints.dynamics import Factor, factor, solve
 from jaxrb.physics.joints.kinematics import Kinematics, integrate_positions, kinematics, point_jacobian
@@ -165,9 +165,8 @@ def current_separation(model, rows: ContactRows, kin: Kinematics):
     return rows.separation + jnp.sum(rows.directions[:, 0] * (moved_a - moved_b), axis=-1)
 
 
-def carried_row_impulses(state, rows: ContactRows, contacts):
-    """(C, 3) last step's impulses of the contacts that persist, along each row's directions."""
-    world = carried_impulses(state, contacts)
+def row_impulses(rows: ContactRows, world):
+    """(C, 3) impulses along each row's directions from (C, 4) normal and world friction impulses."""
     tangential = jnp.einsum("cj,ckj->ck", world[:, 1:], rows.directions[:, 1:])
     return jnp.concatenate([world[:, :1], tangential], axis=-1)
 

@@ -43,7 +43,8 @@ Params that have them.
 from __future__ import annotations
 
 import dataclasses
-from typing import Optional, Sequence
+import functools
+from typing import Callable, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -280,6 +281,33 @@ def _check_linear(model: Model, params: Params) -> None:
                              "torques (inverse_dynamics with zero inertia shows it) and zero the field")
 
 
+#: Samples per call of the compiled batched regressor: any number of samples runs through one program.
+_CHUNK = 256
+
+
+@functools.lru_cache(maxsize=32)
+def _regressor_programs(model: Model, friction: str):
+    """Jitted ``(params, q, q̇, q̈) -> Y``: one sample (nv, P), and a chunk of :data:`_CHUNK` (C, nv, P)."""
+
+    def one(params, qpos, qvel, qacc):
+        torque, count = _linear_model(model, params, qpos, qvel, qacc, friction)
+        dtype = jnp.result_type(qpos, qvel, qacc, params.mass)
+        return jax.jacfwd(torque)(jnp.zeros(count, dtype))
+
+    return jax.jit(one), jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0)))
+
+
+def _chunked(program, params, qpos, qvel, qacc):
+    """``program`` over the samples in chunks of :data:`_CHUNK` (the last padded with its first sample)."""
+    count = qpos.shape[0]
+    padded = -(-count // _CHUNK) * _CHUNK
+    pad = lambda x: jnp.concatenate([x, jnp.broadcast_to(x[:1], (padded - count,) + x.shape[1:])])  # noqa: E731
+    qpos, qvel, qacc = pad(qpos), pad(qvel), pad(qacc)
+    parts = [program(params, qpos[k:k + _CHUNK], qvel[k:k + _CHUNK], qacc[k:k + _CHUNK])
+             for k in range(0, padded, _CHUNK)]
+    return jnp.concatenate(parts)[:count]
+
+
 def regressor(model: Model, params: Params, qpos, qvel, qacc, *, friction: str = "sign"):
     """The identification regressor Y with ``inverse_dynamics(...) == Y @ standard_parameters(...)``.
 
@@ -308,18 +336,18 @@ def regressor(model: Model, params: Params, qpos, qvel, qacc, *, friction: str =
     _check_friction(friction, "regressor")
     _check_linear(model, params)
     qpos, qvel, qacc = jnp.asarray(qpos), jnp.asarray(qvel), jnp.asarray(qacc)
-    dtype = jnp.result_type(qpos, qvel, qacc, params.mass)
-
-    def one(q, v, a):
-        torque, count = _linear_model(model, params, q, v, a, friction)
-        return jax.jacfwd(torque)(jnp.zeros(count, dtype))
-
     batch = qpos.shape[:-1]
+    one, chunk = _regressor_programs(model, friction)
     if batch:
-        flat = jax.vmap(one)(qpos.reshape(-1, tree.nq), qvel.reshape(-1, tree.nv), qacc.reshape(-1, tree.nv))
-        values = flat.reshape(batch + flat.shape[1:])
+        flat = [x.reshape((-1, x.shape[-1])) for x in (qpos, qvel, qacc)]
+        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((params, qpos, qvel, qacc)))
+        if traced or not flat[0].shape[0]:
+            values = jax.vmap(one, in_axes=(None, 0, 0, 0))(params, *flat)
+        else:
+            values = _chunked(chunk, params, *flat)
+        values = values.reshape(batch + values.shape[1:])
     else:
-        values = one(qpos, qvel, qacc)
+        values = one(params, qpos, qvel, qacc)
     return values, parameter_names(model)
 
 
@@ -361,6 +389,12 @@ def base_parameters(Y_stack, names: Sequence[str], tol: float = 1e-8):
         holds 1 at its leading parameter and the folded parameters'
         coefficients; its name reads e.g. ``"I_yy[link1] + 0.09 m[link2] + armature[shoulder]"``.
     """
+    K, base_names, _ = _combinations(Y_stack, names, tol)
+    return K, base_names
+
+
+def _combinations(Y_stack, names, tol):
+    """:func:`base_parameters` and the index of each combination's leading column."""
     matrix = np.asarray(Y_stack, np.float64)
     names = tuple(names)
     if matrix.ndim != 2 or matrix.shape[1] != len(names):
@@ -394,7 +428,7 @@ def base_parameters(Y_stack, names: Sequence[str], tol: float = 1e-8):
         K[:, folded] = coefficients * norms[folded][None, :] / norms[kept][:, None]
     base_names = tuple(_format_combination(names[lead], [(K[i, c], names[c]) for c in folded if K[i, c] != 0.0])
                        for i, lead in enumerate(kept))
-    return K, base_names
+    return K, base_names, kept
 
 
 @dataclasses.dataclass(frozen=True)
@@ -434,13 +468,21 @@ class BaseFit:
 
 
 def fit_base_parameters(model: Model, params: Params, qpos, qvel, qacc, tau, *, friction: str = "sign",
-                        known: Sequence[str] = (), tol: float = 1e-8, weighted: bool = True) -> BaseFit:
+                        known: Sequence[str] = (), filter: Optional[Callable] = None, tol: float = 1e-8,
+                        weighted: bool = True) -> BaseFit:
     """Least squares of the base parameters from measured joint coordinates, velocities, accelerations and forces.
 
     Stacks :func:`regressor` over the N samples, moves the ``known``
     parameters' columns (at their ``params`` values) to the torque side,
     finds the identifiable combinations (:func:`base_parameters`) and solves
-    τ − Y_known θ_known = Y_kept θ_b. With ``weighted``, a second pass
+    τ − Y_known θ_known = Y_kept θ_b. ``filter`` (Gautier's "parallel
+    filtering") applies one linear map along the sample axis to the torques
+    and to every regressor column alike, e.g. a zero-phase low-pass and
+    decimation: since filter(Y θ) = filter(Y) θ for any linear filter, it
+    removes the noise of differentiated accelerations and the mismatch of a
+    friction step against smoothed accelerations without biasing the fit,
+    so ``qacc`` may be a plain difference of lightly smoothed velocities.
+    With ``weighted``, a second pass
     weighs each dof's rows by the inverse of its first-pass residual RMS
     (Gautier's weighted least squares: joints of different torque scales and
     noise count alike). The samples should be rich (many states, the joints
@@ -459,6 +501,9 @@ def fit_base_parameters(model: Model, params: Params, qpos, qvel, qacc, tau, *, 
         friction: the friction columns' law, ``"sign"`` or ``"smooth"``.
         known: standard parameter names (:func:`parameter_names`) taken as known,
             e.g. the stiffness of joints without springs.
+        filter: ``x (N, ...) -> (N', ...)``, linear along axis 0 and the same for
+            every column (e.g. ``lambda x: scipy.signal.filtfilt(b, a, x, axis=0)[::5]``),
+            or None.
         tol: :func:`base_parameters`' threshold.
         weighted: reweight the dofs by their residuals (one extra solve).
 
@@ -474,27 +519,34 @@ def fit_base_parameters(model: Model, params: Params, qpos, qvel, qacc, tau, *, 
     unknown = [name for name in known if name not in names]
     if unknown:
         raise ValueError(f"fit_base_parameters: 'known' names no standard parameter: {unknown}")
-    is_known = np.isin(np.asarray(names), np.asarray(list(known), dtype=object)) if known else \
-        np.zeros(len(names), bool)
+    if filter is not None:
+        Y, tau = np.asarray(filter(Y), np.float64), np.asarray(filter(tau), np.float64)
+        if Y.shape[1:] != (nv, len(names)) or tau.shape != Y.shape[:2]:
+            raise ValueError(f"fit_base_parameters: 'filter' must map (N, ...) arrays to (N', ...) along axis 0 "
+                             f"alike, got regressor {Y.shape} and torques {tau.shape}")
+    known_set = set(known)
+    is_known = np.asarray([name in known_set for name in names], bool)
     theta = np.asarray(standard_parameters(model, params), np.float64)
     target = tau - Y[:, :, is_known] @ theta[is_known]
     free = np.flatnonzero(~is_known)
-    K_free, base_names = base_parameters(Y[:, :, free].reshape(-1, len(free)), [names[c] for c in free], tol)
-    leads = free[np.argmax(K_free == 1.0, axis=1)]  # each combination's leading column (1 there, 0 before)
-    design = Y[:, :, leads]
+    K_free, base_names, kept = _combinations(Y[:, :, free].reshape(-1, len(free)), [names[c] for c in free], tol)
+    design = Y[:, :, free[kept]]
+
+    def solve(weights):
+        rows = (design * weights[None, :, None]).reshape(-1, len(kept))
+        solution = np.linalg.lstsq(rows, (target * weights[None, :]).reshape(-1), rcond=None)[0]
+        return solution, rows, target - design @ solution
+
     weights = np.ones(nv)
-    for _ in range(2 if weighted else 1):
-        rows = (design * weights[None, :, None]).reshape(-1, len(leads))
-        solution, *_ = np.linalg.lstsq(rows, (target * weights[None, :]).reshape(-1), rcond=None)
-        residual = target - design @ solution
+    solution, rows, residual = solve(weights)
+    if weighted:
         rms = np.sqrt(np.mean(residual ** 2, axis=0))
         weights = 1.0 / np.maximum(rms, 1e-12 * max(float(rms.max()), 1e-300))
-    rows = (design * weights[None, :, None]).reshape(-1, len(leads))
+        solution, rows, residual = solve(weights)
     whitened = (residual * weights[None, :]).reshape(-1)
-    dof_count = max(rows.shape[0] - rows.shape[1], 1)
-    variance = float(whitened @ whitened) / dof_count
+    variance = float(whitened @ whitened) / max(rows.shape[0] - rows.shape[1], 1)
     covariance = variance * np.linalg.pinv(rows.T @ rows)
-    K = np.zeros((len(leads), len(names)))
+    K = np.zeros((len(kept), len(names)))
     K[:, free] = K_free
     return BaseFit(theta=solution, names=base_names, K=K, standard_errors=np.sqrt(np.maximum(np.diag(covariance), 0)),
-                   residual_rms=rms, parameter_names=names, known=tuple(known))
+                   residual_rms=np.sqrt(np.mean(residual ** 2, axis=0)), parameter_names=names, known=tuple(known))

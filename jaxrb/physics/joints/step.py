@@ -33,7 +33,7 @@ from jaxrb.model.types import Model, Params, State, Wrench
 from jaxrb.physics.collision.pairs import detect
 from jaxrb.physics.contact.common import carried_impulses
 from jaxrb.physics.contact.penalty import penalty_wrench
-from jaxrb.physics.joints import constraints
+from jaxrb.physics.joints import constraints, planar
 from jaxrb.physics.joints.dynamics import (bias_force, factor, forces, generalized, smooth_force, solve,
                                           world_inertia)
 from jaxrb.physics.joints.kinematics import body_velocities, integrate_positions, kinematics
@@ -48,15 +48,26 @@ def read_out(model: Model, params: Params, state: State, qpos, qvel) -> State:
     """``state`` with qpos, qvel and the bodies' poses and velocities they give.
 
     Args:
+        params: the scene's Params (2D ones for a 2D scene).
         qpos: (nq,) coordinates; qvel: (nv,) velocities.
 
     Returns:
-        The State: ``pos`` (n, 3) centres of mass, ``quat`` (n, 4) body
-        frames, ``vel`` and ``angvel`` (n, 3) world frame.
+        The State: ``pos`` (n, dim) centres of mass, ``quat`` (n, 4) body
+        frames (3D) or ``angle`` (n,) (2D, in [−π, π]), ``vel`` (n, dim) and
+        ``angvel`` ((n, 3) world frame, or (n,)).
     """
-    kin = kinematics(model.joints, params, qpos)
+    space = planar.lift_params(params) if model.dim == 2 else params
+    kin = kinematics(model.joints, space, qpos)
     vel, angvel = body_velocities(kin, qvel)
-    return state.replace(qpos=qpos, qvel=qvel, pos=kin.com, quat=kin.quat, vel=vel, angvel=angvel)
+    return _with_bodies(model, state.replace(qpos=qpos, qvel=qvel), kin, vel, angvel)
+
+
+def _with_bodies(model: Model, state: State, kin, vel, angvel) -> State:
+    """``state`` with the bodies' poses of ``kin`` and the velocities given (in the plane for a 2D scene)."""
+    if model.dim == 2:
+        return state.replace(pos=kin.com[:, :2], angle=planar.angle_of(kin.quat), vel=vel[:, :2],
+                             angvel=angvel[:, 2])
+    return state.replace(pos=kin.com, quat=kin.quat, vel=vel, angvel=angvel)
 
 
 def _loads(model: Model, params: Params, applied: Optional[Wrench]):
@@ -64,7 +75,7 @@ def _loads(model: Model, params: Params, applied: Optional[Wrench]):
     force, torque = params.force, params.torque
     if applied is not None:
         force, torque = force + applied.force, torque + applied.torque
-    return force, torque
+    return planar.lift_loads(force, torque) if model.dim == 2 else (force, torque)
 
 
 def _body_damping(model: Model, params: Params, kin, qvel, force, torque):
@@ -159,20 +170,23 @@ def _constrained_update(model, params, kin, qpos, qvel, found, impulses, h, rows
     return qpos, qvel, impulses
 
 
-def _penalty_substep(model, params, state, qpos, qvel, h, controls, loads):
+def _penalty_substep(model, params, space, state, qpos, qvel, h, controls, loads):
     """One substep with penalty contact: the contact law on the velocities predicted without it, then the
-    contact's generalized force through the same factored M̃; returns (qpos, qvel, state)."""
-    kin = kinematics(model.joints, params, qpos)
-    vel, angvel = body_velocities(kin, qvel)
-    current = state.replace(pos=kin.com, quat=kin.quat, vel=vel, angvel=angvel)
+    contact's generalized force through the same factored M̃; returns (qpos, qvel, state).
+
+    ``params`` are the scene's, ``space`` their 3D view (the same in 3D; :mod:`.planar`).
+    """
+    kin = kinematics(model.joints, space, qpos)
+    current = _with_bodies(model, state, kin, *body_velocities(kin, qvel))
     contacts = detect(model, params, current)
     held = carried_impulses(current, contacts)[:, 1:] / h
-    qvel, found = _velocity_phase(model, params, kin, qpos, qvel, h, controls, loads)
-    predicted_vel, predicted_angvel = body_velocities(kin, qvel)
-    predicted = current.replace(vel=predicted_vel, angvel=predicted_angvel)
+    qvel, found = _velocity_phase(model, space, kin, qpos, qvel, h, controls, loads)
+    predicted = _with_bodies(model, current, kin, *body_velocities(kin, qvel))
     force, torque, normal_force, held = penalty_wrench(model, params, current, contacts, h, predicted, held)
+    if model.dim == 2:
+        force, torque = planar.lift_loads(force, torque)
     qvel = qvel + h * solve(found, generalized(kin, force, torque))
-    qpos, qvel, _ = _constrained_update(model, params, kin, qpos, qvel, found, _zero_impulses(model, qvel), h)
+    qpos, qvel, _ = _constrained_update(model, space, kin, qpos, qvel, found, _zero_impulses(model, qvel), h)
     carried = jnp.concatenate([normal_force[:, None], held], axis=-1) * h
     return qpos, qvel, state.replace(contact_impulse=carried, contact_key=contacts.key, overflow=contacts.overflow)
 
@@ -222,33 +236,40 @@ def make_joint_step(model: Model) -> Callable:
     tree = model.joints
     substeps = model.substeps
 
-    def run_free(state, params, qpos, qvel, h, controls, loads):
-        impulses = _zero_impulses(model, qvel)
-        for _ in range(substeps):
+    def run_free(state, params, space, qpos, qvel, h, controls, loads):
+        def substep(_, carry):
+            qpos, qvel, impulses = carry
             if model.integrator == "rk4":
-                qpos, qvel = _rk4_step(model, params, qpos, qvel, h, controls, loads)
-            else:
-                qpos, qvel, impulses = _euler_substep(model, params, qpos, qvel, impulses, h, controls, loads)
+                return (*_rk4_step(model, space, qpos, qvel, h, controls, loads), impulses)
+            return _euler_substep(model, space, qpos, qvel, impulses, h, controls, loads)
+
+        # A loop, not unrolled: a joint substep is large, and ten of them unrolled compiled in 14 s.
+        carry = (qpos, qvel, _zero_impulses(model, qvel))
+        qpos, qvel, _ = substep(0, carry) if substeps == 1 else jax.lax.fori_loop(0, substeps, substep, carry)
         return state, qpos, qvel
 
-    def run_penalty(state, params, qpos, qvel, h, controls, loads):
+    def run_penalty(state, params, space, qpos, qvel, h, controls, loads):
         overflow = jnp.zeros((), bool)
         for _ in range(substeps):
-            qpos, qvel, state = _penalty_substep(model, params, state, qpos, qvel, h, controls, loads)
+            qpos, qvel, state = _penalty_substep(model, params, space, state, qpos, qvel, h, controls, loads)
             overflow = overflow | state.overflow
         return state.replace(overflow=overflow), qpos, qvel
 
-    def run_impulse(state, params, qpos, qvel, h, controls, loads):
+    def run_impulse(state, params, space, qpos, qvel, h, controls, loads):
         contacts = detect(model, params, state)
-        rows = constraints.prepare_contacts(model, params, kinematics(tree, params, qpos), contacts)
+        carried = carried_impulses(state, contacts)
+        if model.dim == 2:
+            contacts, carried = planar.lift_contacts(contacts), planar.lift_impulses(carried)
+        rows = constraints.prepare_contacts(model, space, kinematics(tree, space, qpos), contacts)
         equality, friction, _ = _zero_impulses(model, qvel, rows)
-        impulses = (equality, friction, constraints.carried_row_impulses(state, rows, contacts))
+        impulses = (equality, friction, constraints.row_impulses(rows, carried))
 
         def substep(_, carry):
-            return _euler_substep(model, params, *carry, h, controls, loads, rows)
+            return _euler_substep(model, space, *carry, h, controls, loads, rows)
 
         qpos, qvel, impulses = jax.lax.fori_loop(0, substeps, substep, (qpos, qvel, impulses))
-        return (state.replace(contact_impulse=constraints.world_row_impulses(rows, impulses[2]),
+        world = constraints.world_row_impulses(rows, impulses[2])
+        return (state.replace(contact_impulse=planar.lower_impulses(world) if model.dim == 2 else world,
                               contact_key=contacts.key, overflow=contacts.overflow), qpos, qvel)
 
     has_contact = model.contact != "none" and model.num_contacts > 0
@@ -260,8 +281,9 @@ def make_joint_step(model: Model) -> Callable:
             raise ValueError(f"step: 'controls' must have shape ({tree.num_actuators},) (the model's actuators "
                              f"in order), got {np.shape(controls)}")
         h = params.dt / substeps
+        space = planar.lift_params(params) if model.dim == 2 else params
         loads = _loads(model, params, applied)
-        state, qpos, qvel = run(state, params, state.qpos, state.qvel, h, controls, loads)
+        state, qpos, qvel = run(state, params, space, state.qpos, state.qvel, h, controls, loads)
         state = read_out(model, params, state, qpos, qvel)
         return state.replace(time=state.time + params.dt)
 

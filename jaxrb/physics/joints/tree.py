@@ -81,7 +81,17 @@ def _conjugate(q):
     return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
-def build_tree(names, origins, quats, joints: list, equalities: list, actuators: list, joint_friction: str):
+def _planar_free(names, body, given):
+    """A free body of the plane: slide x, slide y, hinge z, whose coordinates are its frame's x, y and angle."""
+    spec = lambda kind, axis, suffix: JointSpec(
+        name=f"{names[body]}_{suffix}" if given is None else f"{given.name}_{suffix}", kind=kind, child=body,
+        parent=-1, axis=np.asarray(axis, float), anchor=None, limited=False, range=np.zeros(2), ref=0.0,
+        stiffness=0.0, springref=0.0, damping=0.0, armature=0.0, frictionloss=0.0)
+    return [spec("slide", (1, 0, 0), "x"), spec("slide", (0, 1, 0), "y"), spec("hinge", (0, 0, 1), "angle")]
+
+
+def build_tree(names, origins, quats, joints: list, equalities: list, actuators: list, joint_friction: str,
+               planar: bool = False):
     """Check the joints and lay them out.
 
     Args:
@@ -91,11 +101,14 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
         joints, equalities, actuators: lists of :class:`JointSpec`,
             :class:`EqualitySpec`, :class:`ActuatorSpec` in the order added.
         joint_friction: ``"exact"`` or ``"smooth"``.
+        planar: a 2D scene (bodies in the x-y plane, hinges about z): a free
+            body is a slide along x, a slide along y and a hinge about z.
 
     Returns:
-        (tree, arrays, qpos0): the :class:`JointTree`, a dict of NumPy
-        arrays for the joints' Params fields, and the (nq,) coordinates of
-        the built pose.
+        (tree, arrays, qpos0, free_roots): the :class:`JointTree`, a dict of
+        NumPy arrays for the joints' Params fields, the (nq,) coordinates of
+        the built pose, and the set of free bodies (their coordinates take
+        their velocities).
 
     Raises:
         ValueError: naming the joint (or closure, actuator) and the field.
@@ -143,9 +156,16 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
                                   "joint_springref")}
     dof_arrays = {key: [] for key in ("joint_damping", "joint_armature", "joint_frictionloss")}
     qpos0, nq, nv, joint_of_spec = [], 0, 0, {}
+    planar_roots = set()
     for body in range(n):
         specs = [(i, joints[i]) for i in by_body[body] if joints[i].kind != "fixed"]
-        if not has_joint[body]:  # a root without joints is free, as every body of a scene without joints
+        free = not has_joint[body] or joints[by_body[body][0]].kind == "free"
+        if free and planar:
+            planar_roots.add(body)
+            given = by_body[body][0] if has_joint[body] else None
+            specs = [(given if k == 0 else None, spec) for k, spec in
+                     enumerate(_planar_free(names, body, None if given is None else joints[given]))]
+        elif not has_joint[body]:  # a root without joints is free, as every body of a scene without joints
             specs = [(None, JointSpec(name=f"{names[body]}_free", kind="free", child=body, parent=-1, axis=None,
                                       anchor=None, limited=False, range=np.zeros(2), ref=0.0, stiffness=0.0,
                                       springref=0.0, damping=0.0, armature=0.0, frictionloss=0.0))]
@@ -162,8 +182,10 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
             dof_adr.append(nv)
             width_q, width_v = JOINT_WIDTHS[spec.kind]
             nq, nv = nq + width_q, nv + width_v
-            rotation_t = rotations[body].T
-            anchor = origins[body] if spec.anchor is None else spec.anchor
+            # Written in the frame the joint turns, at the built pose: the body's own there, as every
+            # displacement is zero; a planar root's coordinates are the world's (its frame starts at the origin).
+            rotation_t = np.eye(3) if body in planar_roots else rotations[body].T
+            anchor = origins[body] if spec.anchor is None or body in planar_roots else spec.anchor
             arrays["joint_pos"].append(rotation_t @ (anchor - origins[body]))
             axis = np.zeros(3) if spec.axis is None else spec.axis / np.linalg.norm(spec.axis)
             arrays["joint_axis"].append(rotation_t @ axis)
@@ -175,7 +197,10 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
             for key, value in (("joint_damping", spec.damping), ("joint_armature", spec.armature),
                                ("joint_frictionloss", spec.frictionloss)):
                 dof_arrays[key] += [value] * width_v
-            if spec.kind == "free":
+            if body in planar_roots:
+                qpos0.append(origins[body][0] if spec.axis[0] else origins[body][1] if spec.axis[1]
+                             else 2.0 * np.arctan2(quats[body][3], quats[body][0]))
+            elif spec.kind == "free":
                 qpos0 += list(origins[body]) + list(quats[body])
             elif spec.kind == "ball":
                 qpos0 += [1.0, 0.0, 0.0, 0.0]
@@ -185,7 +210,10 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
 
     parent_offset, parent_rotation = [], []
     for body in range(n):
-        if parent[body] < 0:
+        if body in planar_roots:
+            parent_offset.append(np.zeros(3))
+            parent_rotation.append(np.array([1.0, 0.0, 0.0, 0.0]))
+        elif parent[body] < 0:
             parent_offset.append(origins[body])
             parent_rotation.append(quats[body])
         else:
@@ -241,7 +269,9 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
         out[key] = np.asarray(values, float).reshape(shapes.get(key, (0,)) if not values else np.shape(values))
     out["parent_offset"] = np.asarray(parent_offset, float)
     out["parent_rotation"] = np.asarray(parent_rotation, float)
-    return tree, out, np.asarray(qpos0, float)
+    free_roots = {body for body in range(n) if body in planar_roots
+                  or (body_joints[body] and kinds[body_joints[body][0]] == "free")}
+    return tree, out, np.asarray(qpos0, float), free_roots
 
 
 def collision_filter(tree: JointTree):
