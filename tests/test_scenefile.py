@@ -375,9 +375,12 @@ def test_joint_errors_at_build_and_in_2d_name_the_file():
     with pytest.raises(ValueError, match=r"^s\.json: build: unknown joint_friction 'sticky'"):
         sf.scene_from_dict(data, source="s.json").build()
     data = {"format": "jaxrb-scene", "version": 2, "dim": 2, "bodies": [{"shape": {"kind": "circle", "radius": 0.1}}],
-            "joints": [{"kind": "hinge", "child": 0}]}
-    with pytest.raises(ValueError, match=r"^s\.json: joints\[0\]\.kind: joints are 3D only"):
+            "joints": [{"kind": "ball", "child": 0}]}
+    with pytest.raises(ValueError, match=r"^s\.json: joints\[0\]\.kind: a ball joint is 3D only"):
         sf.scene_from_dict(data, source="s.json")
+    data["joints"] = [{"kind": "slide", "axis": [1, 0], "child": 0}, {"kind": "hinge", "anchor": [0, 0.1], "child": 0}]
+    loaded = sf.scene_from_dict(data, source="s.json")
+    assert sf.scene_from_dict(sf.scene_to_dict(loaded.scene)).build(dt=0.01)[0].joints.nq == 2
 
 
 def test_version_1_files_still_read():

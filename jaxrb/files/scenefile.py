@@ -173,9 +173,10 @@ def _exclusion_field_checkers():
     return {"body_a": _integer, "body_b": _integer, "plane": _integer}
 
 
-def _kind_field_checkers(cls):
-    """The fields of a joint or equality kind (``axis``, ``anchor``): 3 numbers each."""
-    return {field.name: _vec(3) for field in dataclasses.fields(cls)}
+def _kind_field_checkers(cls, dim):
+    """The fields of a joint or equality kind: a hinge's ``axis`` 3 numbers, anchors and a slider's axis ``dim``."""
+    return {field.name: _vec(3 if (field.name == "axis" and cls is JOINT_KIND_NAMES["hinge"]) else dim)
+            for field in dataclasses.fields(cls)}
 
 
 def _shape_field_checkers(kind, dim):
@@ -372,7 +373,7 @@ def _check_fields(ctx, where, entry, checkers):
     return dict(entry)
 
 
-def _read_kind(ctx, where, entry, kinds, what, method, checkers):
+def _read_kind(ctx, where, entry, kinds, what, method, checkers, dim):
     """Arguments of add_joint/add_equality from a flat entry: ``kind`` and its fields become the kind object."""
     if not isinstance(entry, dict):
         ctx.fail(where, f"expected an object, got {_describe(entry)}")
@@ -381,7 +382,7 @@ def _read_kind(ctx, where, entry, kinds, what, method, checkers):
     kind = entry["kind"]
     if not isinstance(kind, str) or kind not in kinds:
         ctx.fail(f"{where}.kind", f"unknown {what} kind {_describe(kind)}; valid kinds are: {', '.join(kinds)}")
-    kind_checkers = _kind_field_checkers(kinds[kind])
+    kind_checkers = _kind_field_checkers(kinds[kind], dim)
     others = [name for name in _parameters(method) if name != "kind"]
     valid = ["kind"] + list(kind_checkers) + others
     required = [name for name, parameter in inspect.signature(method).parameters.items()
@@ -475,7 +476,7 @@ def scene_from_dict(data: dict, source: Optional[str] = None) -> SceneFile:
             ("equalities", EQUALITY_KIND_NAMES, "equality", Scene.add_equality, _equality_field_checkers())):
         for index, entry in enumerate(_list(ctx, data, section)):
             where = f"{section}[{index}]"
-            arguments = _read_kind(ctx, where, entry, kinds, what, method, checkers)
+            arguments = _read_kind(ctx, where, entry, kinds, what, method, checkers, dim)
             _replay(ctx, where, getattr(scene, method.__name__), arguments)
 
     checkers = _actuator_field_checkers()
