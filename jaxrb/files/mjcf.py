@@ -40,8 +40,8 @@ and MJX do:
   pairs where they differ).
 * ``<option>``: ``timestep`` is the build's ``dt``, ``gravity``, the
   ``integrator`` (``Euler`` -> ``semi_implicit``, ``RK4`` -> ``rk4`` where the
-  scene has no contact, loop closure or exact friction; the implicit ones
-  -> ``semi_implicit`` with a warning), and the disable flags for contact,
+  scene has no contact, loop closure or exact friction, else ``midpoint``;
+  the implicit ones -> ``semi_implicit``; each with a warning), and the disable flags for contact,
   gravity, limits, equality, frictionloss, springs and dampers.
 
 What changes the dynamics and has no jaxrb meaning (tendons, activation

@@ -1,23 +1,26 @@
-"""The step of a scene with joints: joint coordinates advanced as MuJoCo's Euler or RK4 integrator does.
+"""The step of a scene with joints: joint coordinates advanced as MuJoCo's integrators do, or better.
 
 One call of ``step(state, params, applied=None, controls=None)``:
 
 1. loads: constant and applied wrenches (gravity enters with the bias forces);
-2. ``model.substeps`` substeps of h = dt/substeps. Semi-implicit Euler
-   (``integrator="semi_implicit"``, the default; MuJoCo's ``Euler``): the
-   velocity phase solves (M + hD + h²K) q̈ = τ (:mod:`.dynamics`), then the
-   constraint passes (:mod:`.constraints`: loop closures, exact joint friction,
-   impulse contacts with warm start, soft passes, the position update, relax
-   passes, restitution) or, with penalty contact, the contact forces on the
-   predicted velocities; then qpos advances with the new q̇. ``rk4``:
-   MuJoCo's RK4 on (qpos, qvel), with its correction of ball and free
-   rotations, for scenes without contact, loop closures or exact friction;
-3. the read-outs: ``State.pos`` (centres of mass), ``quat``, ``vel`` and
-   ``angvel`` from the new qpos and qvel, and ``time += dt``.
+2. ``model.substeps`` substeps of h = dt/substeps. The velocity-first
+   integrators (``midpoint``, the default; ``semi_implicit``, MuJoCo's
+   ``Euler``; ``implicit``) solve M̃ q̈ = τ in the velocity phase
+   (:func:`_velocity_phase`, :mod:`.dynamics`), then run the constraint
+   passes (:mod:`.constraints`: loop closures, exact joint friction, impulse
+   contacts with warm start, impacts, soft passes, the position update,
+   relax passes, restitution) or, with penalty contact, add the contact
+   forces computed on the predicted velocities; then qpos advances with the
+   new q̇. ``rk4`` is MuJoCo's RK4 on (qpos, qvel), with its correction of
+   ball and free rotations, for scenes without contact, loop closures or
+   exact friction;
+3. the read-outs: ``State.pos`` (centres of mass), ``quat`` (or ``angle``),
+   ``vel`` and ``angvel`` from the new qpos and qvel, and ``time += dt``.
 
 Impulse contact detects once a step on the starting pose, as the free-body
 solver does, and rebuilds the rows' Jacobians each substep from their
-anchors; penalty contact detects every substep.
+anchors; penalty contact detects every substep. A 2D scene runs on its
+Params' 3D view (:mod:`.planar`).
 """
 
 from __future__ import annotations
@@ -38,9 +41,9 @@ from jaxrb.physics.joints.dynamics import (bias_force, factor, forces, generaliz
                                           world_inertia)
 from jaxrb.physics.joints.kinematics import body_velocities, integrate_positions, kinematics
 
-#: Integrators of scenes with joints (``scene.build``'s ``integrator``): MuJoCo's Euler
-#: (``semi_implicit``), the linearised implicit midpoint in velocity (``midpoint``, the default), the
-#: linearised implicit Euler in velocity and position (``implicit``) and MuJoCo's RK4.
+#: Integrators of scenes with joints (``scene.build``'s ``integrator``): the implicit midpoint rule in the
+#: Coriolis terms (``midpoint``, the default), MuJoCo's Euler (``semi_implicit``), the linearised implicit
+#: Euler in velocity and position (``implicit``) and MuJoCo's RK4 (:func:`_velocity_phase`).
 JOINT_INTEGRATORS = ("midpoint", "semi_implicit", "implicit", "rk4")
 
 
