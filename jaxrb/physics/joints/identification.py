@@ -29,7 +29,9 @@
 
 Everything but :func:`base_parameters` and :func:`fit_base_parameters` works
 under ``jit`` and ``vmap`` (those two are host-side NumPy on a stacked
-regressor). The model must have joints (3D scenes, :mod:`jaxrb.model.joints`).
+regressor). The model must have joints (:mod:`jaxrb.model.joints`); a 2D
+scene's run on the 3D view of its Params (:mod:`.planar`), a body then
+having the plane's 4 inertial parameters m, m c_x, m c_y and I_zz.
 
 What :func:`inverse_dynamics` leaves out: joint limits (their spring-damper is
 a constraint force, part of what it returns once a joint is past its range)
@@ -53,6 +55,7 @@ import numpy as np
 from jaxrb.math import quaternion as quat_ops
 from jaxrb.math.vector import cross, matvec3
 from jaxrb.model.types import Model, Params
+from jaxrb.physics.joints import planar
 from jaxrb.physics.joints.dynamics import bias_force, generalized, mass_matrix, spring_force, world_inertia
 from jaxrb.physics.joints.kinematics import bias_accelerations, body_velocities, kinematics
 
@@ -62,9 +65,21 @@ from jaxrb.physics.joints.kinematics import bias_accelerations, body_velocities,
 FRICTION_LAWS = ("smooth", "sign")
 #: The 10 inertial parameters of a body, in the order of the standard parameter vector.
 INERTIAL_NAMES = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_xz", "I_yy", "I_yz", "I_zz")
+#: A body's inertial parameters in a 2D scene (motion in the x-y plane, turning about z): their
+#: indices among :data:`INERTIAL_NAMES`.
+PLANAR_INERTIAL = (0, 1, 2, 9)
 #: (row, column) of the inertia entries I_xx, I_xy, I_xz, I_yy, I_yz, I_zz.
 _INERTIA_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 _DOF_SUFFIXES = {"ball": ("x", "y", "z"), "free": ("x", "y", "z", "rx", "ry", "rz")}
+
+
+def _space(model: Model, params: Params) -> Params:
+    """The 3D view of the Params the joint machinery runs on (:mod:`.planar` for a 2D scene)."""
+    return planar.lift_params(params) if model.dim == 2 else params
+
+
+def _inertial_fields(model: Model) -> tuple:
+    return tuple(INERTIAL_NAMES[k] for k in PLANAR_INERTIAL) if model.dim == 2 else INERTIAL_NAMES
 
 
 def _tree(model: Model, caller: str):
@@ -123,14 +138,15 @@ def parameter_names(model: Model) -> tuple:
 
     Returns:
         (P,) tuple of str: ``m[body]``, ``mc_x[body]`` ... ``I_zz[body]`` per
-        moving body (body order), then ``armature[dof]`` per dof, ``damping[dof]``
-        per dof, ``friction[dof]`` per dof, ``stiffness[joint]`` per hinge or slide.
-        P = 10 (moving bodies) + 3 nv + (hinges and slides).
+        moving body (body order; in a 2D scene only ``m``, ``mc_x``, ``mc_y``,
+        ``I_zz``), then ``armature[dof]`` per dof, ``damping[dof]`` per dof,
+        ``friction[dof]`` per dof, ``stiffness[joint]`` per hinge or slide.
+        P = 10 (4 in 2D) × (moving bodies) + 3 nv + (hinges and slides).
     """
     tree = _tree(model, "parameter_names")
     bodies = model.names if len(model.names) == len(tree.parent) else tuple(f"body{b}" for b in
                                                                              range(len(tree.parent)))
-    names = [f"{field}[{bodies[b]}]" for b in _moving_bodies(tree) for field in INERTIAL_NAMES]
+    names = [f"{field}[{bodies[b]}]" for b in _moving_bodies(tree) for field in _inertial_fields(model)]
     dofs = dof_names(model)
     for field in ("armature", "damping", "friction"):
         names += [f"{field}[{dof}]" for dof in dofs]
@@ -145,7 +161,9 @@ def standard_parameters(model: Model, params: Params):
     entries xx, xy, xz, yy, yz, zz of the inertia about the body frame's
     origin in the body frame, I_com + m (|c|² 1 − c cᵀ); then per dof
     ``joint_armature``, ``joint_damping``, ``joint_frictionloss``; then
-    ``joint_stiffness`` per hinge or slide. Works under ``jit`` and ``vmap``.
+    ``joint_stiffness`` per hinge or slide. In a 2D scene a body has m,
+    m c_x, m c_y and its moment about the frame origin I_z + m |c|². Works
+    under ``jit`` and ``vmap``.
 
     Args:
         model: a Model with joints.
@@ -154,15 +172,30 @@ def standard_parameters(model: Model, params: Params):
     Returns:
         (P,) theta, so that ``regressor(...)[0] @ theta == inverse_dynamics(...)``.
     """
-    tree = _tree(model, "standard_parameters")
+    _tree(model, "standard_parameters")
+    return _standard_program(model)(params)
+
+
+@functools.lru_cache(maxsize=32)
+def _standard_program(model: Model):
+    """Jitted :func:`standard_parameters` of a Model (one program, not many small eager ones)."""
+    return jax.jit(functools.partial(_standard, model))
+
+
+def _standard(model: Model, params: Params):
+    tree = model.joints
     bodies = np.asarray(_moving_bodies(tree), int)
-    mass, com, inertia = params.mass[bodies], params.com_offset[bodies], params.inertia[bodies]
+    space = _space(model, params)
+    mass, com, inertia = space.mass[bodies], space.com_offset[bodies], space.inertia[bodies]
     first = mass[:, None] * com
     shift = mass[:, None, None] * (jnp.sum(com * com, -1)[:, None, None] * jnp.eye(3, dtype=com.dtype)
                                    - com[:, :, None] * com[:, None, :])
     about_origin = inertia + shift
     entries = jnp.stack([about_origin[:, r, c] for r, c in _INERTIA_ENTRIES], axis=-1)
-    inertial = jnp.concatenate([mass[:, None], first, entries], axis=-1).reshape(-1)
+    inertial = jnp.concatenate([mass[:, None], first, entries], axis=-1)
+    if model.dim == 2:
+        inertial = inertial[:, np.asarray(PLANAR_INERTIAL)]
+    inertial = inertial.reshape(-1)
     springs = np.asarray(_spring_joints(tree), int)
     return jnp.concatenate([inertial, params.joint_armature, params.joint_damping, params.joint_frictionloss,
                             params.joint_stiffness[springs] if len(springs) else jnp.zeros(0, inertial.dtype)])
@@ -212,6 +245,7 @@ def inverse_dynamics(model: Model, params: Params, qpos, qvel, qacc, *, friction
     """
     tree = _tree(model, "inverse_dynamics")
     _check_friction(friction, "inverse_dynamics")
+    params = _space(model, params)
     kin = kinematics(tree, params, qpos)
     inertia = world_inertia(kin, params)
     tau = mass_matrix(params, kin, inertia) @ qacc + bias_force(tree, params, kin, inertia, qvel)
@@ -221,7 +255,8 @@ def inverse_dynamics(model: Model, params: Params, qpos, qvel, qacc, *, friction
 
 
 def _linear_model(model: Model, params: Params, qpos, qvel, qacc, friction: str):
-    """``theta -> τ`` (P,) -> (nv,): the Newton–Euler equations about each body's origin, linear in theta.
+    """``theta -> τ`` (P,) -> (nv,): the Newton–Euler equations about each body's origin, linear in theta
+    (the 3D theta, 10 inertial parameters a body, in a 2D scene too).
 
     For body b with origin velocity v_o = J_o q̇, angular velocity ω = J_ω q̇,
     accelerations a_o = J_o q̈ + J̇_o q̇ − g and α = J_ω q̈ + J̇_ω q̇, first
@@ -230,6 +265,7 @@ def _linear_model(model: Model, params: Params, qpos, qvel, qacc, friction: str)
     τ = Σ_b J_oᵀ f + J_ωᵀ n_o, plus the joint terms.
     """
     tree = model.joints
+    params = _space(model, params)
     bodies = np.asarray(_moving_bodies(tree), int)
     springs = np.asarray(_spring_joints(tree), int)
     at_origin = dataclasses.replace(params, com_offset=jnp.zeros_like(params.com_offset))
@@ -289,10 +325,18 @@ _CHUNK = 256
 def _regressor_programs(model: Model, friction: str):
     """Jitted ``(params, q, q̇, q̈) -> Y``: one sample (nv, P), and a chunk of :data:`_CHUNK` (C, nv, P)."""
 
+    columns = None
+    if model.dim == 2:  # planar motion: only m, m c_x, m c_y and I_zz act
+        tree = model.joints
+        nb = len(_moving_bodies(tree))
+        inertial = [10 * b + k for b in range(nb) for k in PLANAR_INERTIAL]
+        columns = np.asarray(inertial + list(range(10 * nb, 10 * nb + 3 * tree.nv + len(_spring_joints(tree)))))
+
     def one(params, qpos, qvel, qacc):
         torque, count = _linear_model(model, params, qpos, qvel, qacc, friction)
         dtype = jnp.result_type(qpos, qvel, qacc, params.mass)
-        return jax.jacfwd(torque)(jnp.zeros(count, dtype))
+        values = jax.jacfwd(torque)(jnp.zeros(count, dtype))
+        return values if columns is None else values[:, columns]
 
     return jax.jit(one), jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0)))
 
@@ -340,7 +384,8 @@ def regressor(model: Model, params: Params, qpos, qvel, qacc, *, friction: str =
     one, chunk = _regressor_programs(model, friction)
     if batch:
         flat = [x.reshape((-1, x.shape[-1])) for x in (qpos, qvel, qacc)]
-        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((params, qpos, qvel, qacc)))
+        leaves = jax.tree_util.tree_leaves((params, qpos, qvel, qacc))
+        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in leaves)
         if traced or not flat[0].shape[0]:
             values = jax.vmap(one, in_axes=(None, 0, 0, 0))(params, *flat)
         else:
@@ -440,7 +485,9 @@ class BaseFit:
         names: (B,) their names (:func:`base_parameters`).
         K: (B, P) the map from the standard parameters (:func:`parameter_names`) to them; the
             columns of the ``known`` parameters are zero.
-        standard_errors: (B,) their standard errors, from the weighted residuals.
+        standard_errors: (B,) their standard errors, from the weighted residuals with the rows taken
+            as independent: after a low-pass ``filter`` rows closer than about 1/(2 f_c) are
+            correlated, and these are too small by about the square root of the rows in that span.
         residual_rms: (nv,) root-mean-square torque residual per dof.
         parameter_names: (P,) the standard parameters' names.
         known: names of the parameters held at their Params values.
