@@ -134,6 +134,12 @@ class _Fields:
         return number
 
 
+def _labelled(what: str, index: int, name: Optional[str]):
+    """(index, name, field checker) of the ``what`` being added: its messages start 'joint 2 ('elbow')'."""
+    name = name if name is not None else f"{what}{index}"
+    return index, name, _Fields(f"{what} {index} ({name!r})")
+
+
 def _given_arguments(arguments: dict, method) -> dict:
     """The keyword arguments of one add_body/add_plane call that differ from the defaults.
 
@@ -434,9 +440,7 @@ class Scene:
             The joint's index (for :meth:`add_actuator`).
         """
         arguments = dict(locals())
-        index = len(self._joints)
-        name = name if name is not None else f"joint{index}"
-        check = _Fields(f"joint {index} ({name!r})")
+        index, name, check = _labelled("joint", len(self._joints), name)
         if type(kind) not in JOINT_KINDS:
             check.fail("kind", f"must be one of rb.{', rb.'.join(cls.__name__ for cls in JOINT_KINDS)}, "
                                f"got {kind!r}")
@@ -499,9 +503,7 @@ class Scene:
             The closure's index.
         """
         arguments = dict(locals())
-        index = len(self._equalities)
-        name = name if name is not None else f"equality{index}"
-        check = _Fields(f"equality {index} ({name!r})")
+        index, name, check = _labelled("equality", len(self._equalities), name)
         if type(kind) not in EQUALITY_KINDS:
             check.fail("kind", f"must be rb.Connect(anchor) or rb.Weld(), got {kind!r}")
         body_a = self._body_index(check, "body_a", body_a, allow_world=False)
@@ -544,9 +546,7 @@ class Scene:
             The actuator's index.
         """
         arguments = dict(locals())
-        index = len(self._actuators)
-        name = name if name is not None else f"actuator{index}"
-        check = _Fields(f"actuator {index} ({name!r})")
+        index, name, check = _labelled("actuator", len(self._actuators), name)
         check_option("actuator kind", kind, ACTUATOR_KINDS)
         if not isinstance(joint, (int, np.integer)) or isinstance(joint, bool) or not 0 <= joint < len(self._joints):
             check.fail("joint", f"must be a joint index 0..{len(self._joints) - 1}, got {joint!r}")

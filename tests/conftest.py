@@ -65,3 +65,16 @@ def assert_grad_matches_fd(fn, args, rtol=1e-6, eps=1e-6, directions=3, seed=0):
         assert abs(directional - finite_difference) <= rtol * max(1.0, abs(finite_difference)), \
             (directional, finite_difference)
     return grad
+
+def assert_same_build(first, second):
+    """Two (model, params, state) triples are equal: static Model, every leaf and its dtype."""
+    import numpy as np
+
+    (model_a, params_a, state_a), (model_b, params_b, state_b) = first, second
+    assert model_a == model_b
+    leaves_a = jax.tree_util.tree_leaves_with_path((params_a, state_a))
+    leaves_b = jax.tree_util.tree_leaves((params_b, state_b))
+    assert len(leaves_a) == len(leaves_b)
+    for (path, a), b in zip(leaves_a, leaves_b):
+        assert a.dtype == b.dtype, jax.tree_util.keystr(path)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))

@@ -20,6 +20,7 @@ import pytest
 import jaxrb as rb
 from jaxrb.files import mjcf
 from jaxrb.files import scenefile as sf
+from conftest import assert_same_build
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -30,17 +31,6 @@ GYM_MODELS = ("inverted_pendulum", "inverted_double_pendulum", "hopper", "walker
 F64 = dict(dtype="float64")
 JOINT_TYPES = {0: "free", 1: "ball", 2: "slide", 3: "hinge"}
 
-
-def assert_same_build(first, second):
-    """Two (model, params, state) triples are equal: static Model, every leaf and its dtype."""
-    (model_a, params_a, state_a), (model_b, params_b, state_b) = first, second
-    assert model_a == model_b
-    leaves_a = jax.tree_util.tree_leaves_with_path((params_a, state_a))
-    leaves_b = jax.tree_util.tree_leaves((params_b, state_b))
-    assert len(leaves_a) == len(leaves_b)
-    for (path, a), b in zip(leaves_a, leaves_b):
-        assert a.dtype == b.dtype, jax.tree_util.keystr(path)
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
 
 
 def mujoco_ids(mj_model, model):
