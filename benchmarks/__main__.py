@@ -22,8 +22,8 @@ import sys
 from jaxrb.bench import __main__ as package_report
 
 #: Every section, in report order: jaxrb's own (jaxrb.bench.__main__.SECTIONS) and the peers'.
-SECTIONS = ("real_data", "double_pendulum", "speed_error", "hard_cases", "peers", "tumbling", "throughput",
-            "contact", "gradients", "smoothing")
+SECTIONS = ("real_data", "double_pendulum", "joints_accuracy", "speed_error", "hard_cases", "peers", "tumbling",
+            "throughput", "contact", "gradients", "smoothing")
 
 
 def _run_peers(quick: bool, out_dir: str, log):
@@ -44,6 +44,12 @@ def _run_double_pendulum(quick: bool, out_dir: str, log):
     return double_pendulum.double_pendulum_section(double_pendulum.QUICK if quick else double_pendulum.FULL, log)
 
 
+def _run_joints_accuracy(quick: bool, out_dir: str, log):
+    from benchmarks import joints_accuracy
+
+    return joints_accuracy.joints_accuracy_section(joints_accuracy.QUICK if quick else joints_accuracy.FULL, log)
+
+
 #: The sections this folder adds to jaxrb's report.
 EXTRA = {
     "peers": package_report.Section(
@@ -62,6 +68,11 @@ EXTRA = {
         "state and torques (examples/double_pendulum): jaxrb's fitted scene against the publishers' identified "
         "plant, leave-one-record-out, and the noise floor",
         _run_double_pendulum),
+    "joints_accuracy": package_report.Section(
+        "Joints beside MuJoCo: each integrator's distance to MuJoCo's RK4",
+        "gymnasium's inverted pendulums, hopper and ant and a double pendulum from random states, contact and "
+        "limits off, h = 1e-4 s: jaxrb's integrators and MuJoCo's Euler against MuJoCo's RK4",
+        _run_joints_accuracy),
 }
 
 

@@ -591,13 +591,13 @@ class Scene:
             integrator: one of ``"euler"``, ``"semi_implicit"`` (the default without
                 joints), ``"implicit_gyro"``, ``"rk4"``, ``"rk4_body"`` (see
                 :mod:`jaxrb.physics.integrators`). A scene with joints takes
-                ``"midpoint"`` (the default: Coriolis terms half implicit, which
-                keeps a double pendulum's energy), ``"semi_implicit"``
-                (MuJoCo's Euler), ``"implicit"`` (velocity and position terms
+                ``"rk4"`` (MuJoCo's RK4: the default where nothing can touch and
+                there are no limits, loop closures or exact joint friction; it
+                takes no closures or exact friction), ``"midpoint"`` (the default otherwise: the
+                Coriolis terms at the mid-velocity), ``"semi_implicit"``
+                (MuJoCo's Euler) or ``"implicit"`` (velocity and position terms
                 implicit: stable for stiff chains at large steps, and
-                dissipative) or ``"rk4"`` (MuJoCo's RK4; no contact, loop
-                closures or exact joint friction); see
-                :mod:`jaxrb.physics.joints.step`.
+                dissipative); see :mod:`jaxrb.physics.joints.step`.
             orientation: ``"first_order"`` or ``"exp_map"`` (default). The RK4s integrate
                 the quaternion ODE themselves, so they take no orientation option.
             contact: the contact model and its options: ``rb.Impulse(...)``,
@@ -674,9 +674,6 @@ class Scene:
             if index not in free_roots and (np.any(body.vel != 0.0) or np.any(body.angvel != 0.0)):
                 raise ValueError(f"body {index} ({body.name!r}): fields 'vel' and 'angvel' must be zero on a "
                                  "body with joints; set joint velocities with rb.joints.set_qpos_qvel")
-        if integrator == "rk4" and (tree.equality_kind or (tree.friction_dofs and joint_friction == "exact")):
-            raise ValueError("scene.build: integrator 'rk4' takes no loop closures and no exact joint friction "
-                             "(use joint_friction='smooth', or the 'semi_implicit' integrator)")
         return tree, arrays, qpos0, free_roots
 
     def _frame(self, body):
@@ -698,7 +695,8 @@ class Scene:
             raise ValueError("scene.build: the scene has no bodies; add one with add_body")
         dt = check.scalar("dt", dt, **param_bounds("dt"))
         jointed = bool(self._joints or self._equalities or self._actuators)
-        if integrator is None:
+        chosen = integrator
+        if integrator is None:  # with joints: rk4 where the scene lets it, decided once its pairs are known
             integrator = "midpoint" if jointed else "semi_implicit"
         check_option("integrator", integrator, INTEGRATORS)
         if integrator in JOINT_ONLY_INTEGRATORS and not jointed:
@@ -740,6 +738,12 @@ class Scene:
         if contact is None:
             contact = "impulse" if pair_groups else "none"
         check_option("contact", contact, CONTACT_MODELS)
+        smooth = jointed and (contact == "none" or not pair_groups) and not tree.has_rows and not any(tree.limited)
+        if chosen is None and smooth:
+            integrator = "rk4"  # MuJoCo's RK4: a double pendulum's energy to 1e-7 over 10 s (design.md, Joints)
+        if jointed and integrator == "rk4" and tree.has_rows:
+            raise ValueError("scene.build: integrator 'rk4' takes no loop closures and no exact joint friction "
+                             "(use joint_friction='smooth', or the 'midpoint' integrator)")
         if contact == "none":
             pair_groups = ()
         elif not velocity_first:

@@ -206,6 +206,11 @@ class JointTree:
         """Rows of the loop closures: 3 a connect, 6 a weld."""
         return sum(3 if kind == "connect" else 6 for kind in self.equality_kind)
 
+    @property
+    def has_rows(self) -> bool:
+        """Whether the step has constraint rows: loop closures or exact Coulomb joint friction (rk4 has none)."""
+        return bool(self.equality_kind) or (bool(self.friction_dofs) and self.joint_friction == "exact")
+
     @functools.cached_property
     def _derived(self):
         return _masks(self.parent, self.body_joints, self.joint_kind, self.dof_adr, self.nv)

@@ -132,11 +132,6 @@ def _zero_impulses(model: Model, qvel, rows=None):
             jnp.zeros((count, 3), qvel.dtype))
 
 
-def _needs_rows(model: Model) -> bool:
-    tree = model.joints
-    return bool(tree.equality_kind) or (bool(tree.friction_dofs) and tree.joint_friction == "exact")
-
-
 def _euler_substep(model, params, qpos, qvel, impulses, h, controls, loads, rows=None):
     """One velocity-first substep with impulse contact (``rows``) or none; returns (qpos, qvel, impulses)."""
     kin = kinematics(model.joints, params, qpos)
@@ -150,7 +145,7 @@ def _constrained_update(model, params, kin, qpos, qvel, found, impulses, h, rows
     Warm start, ``iterations`` soft passes, positions (projected back onto
     the loop closures), ``relax_iterations`` rigid passes, restitution.
     """
-    if rows is None and not _needs_rows(model):
+    if rows is None and not model.joints.has_rows:
         return integrate_positions(model.joints, qpos, qvel, h), qvel, impulses
     sys = constraints.system(model, params, kin, found, h, qvel, rows)
     qvel = constraints.warm_start(sys, qvel, impulses)
