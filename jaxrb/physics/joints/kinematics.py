@@ -108,6 +108,7 @@ def poses(tree, params: Params, qpos):
     joint_pos = params.joint_pos if tree.num_joints else jnp.zeros((1, 3), dtype)
     joint_ref = params.joint_ref if tree.num_joints else jnp.zeros((1,), dtype)
     identity = jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype)
+    present = set(tree.joint_kind)
 
     def visit(carry, row):
         origins, quats = carry
@@ -120,15 +121,21 @@ def poses(tree, params: Params, qpos):
             anchor = x + quat_ops.rotate(q, joint_pos[j])
             axis = quat_ops.rotate(q, local_axis[j])
             displacement = coordinates[0] - joint_ref[j]
-            hinge_q = quat_ops.multiply(q, quat_ops.from_axis_angle(local_axis[j], displacement))
-            ball_q = quat_ops.multiply(q, quat_ops.normalize(coordinates[:4]))
-            free_q = quat_ops.normalize(coordinates[3:7])
-            new_q = jnp.select([kind == 1, kind == 3, kind == 4], [hinge_q, ball_q, free_q], q)
-            turned = anchor - quat_ops.rotate(new_q, joint_pos[j])
-            new_x = jnp.select([(kind == 1) | (kind == 3), kind == 2, kind == 4],
-                               [turned, x + axis * displacement, coordinates[:3]], x)
+            # Only the kinds the tree has are computed (a chain of hinges turns no quaternion from qpos).
+            turns = {"hinge": lambda: quat_ops.multiply(q, quat_ops.from_axis_angle(local_axis[j], displacement)),
+                     "ball": lambda: quat_ops.multiply(q, quat_ops.normalize(coordinates[:4])),
+                     "free": lambda: quat_ops.normalize(coordinates[3:7])}
+            chosen = [(kind == KIND_CODES[name], turn()) for name, turn in turns.items() if name in present]
+            new_q = jnp.select(*zip(*chosen), q) if chosen else q
+            moves = [((kind == 1) | (kind == 3), lambda: anchor - quat_ops.rotate(new_q, joint_pos[j]),
+                      present & {"hinge", "ball"}),
+                     (kind == 2, lambda: x + axis * displacement, present & {"slide"}),
+                     (kind == 4, lambda: coordinates[:3], present & {"free"})]
+            chosen = [(condition, move()) for condition, move, wanted in moves if wanted]
+            new_x = jnp.select(*zip(*chosen), x) if chosen else x
             # A ball's qvel is the angular velocity in the frame it turns; a free body's about its origin.
-            records.append((axis, jnp.where(kind == 4, new_x, anchor), quat_ops.to_rotation_matrix(new_q)))
+            rotation = quat_ops.to_rotation_matrix(new_q) if present & {"ball", "free"} else jnp.zeros((3, 3), dtype)
+            records.append((axis, jnp.where(kind == 4, new_x, anchor), rotation))
             x, q = new_x, new_q
         origins = jax.lax.dynamic_update_index_in_dim(origins, x, body, 0)
         quats = jax.lax.dynamic_update_index_in_dim(quats, q, body, 0)
