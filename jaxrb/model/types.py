@@ -144,7 +144,7 @@ class Model:
         stages = ["forces (gravity, constant and applied wrenches)"]
         if self.damping:
             stages.append("damping")
-        orientation = self.dim == 3 and self.integrator not in QUATERNION_ODE_INTEGRATORS
+        orientation = self.dim == 3 and self.integrator not in QUATERNION_ODE_INTEGRATORS and self.joints is None
         stages.append(f"integrator {self.integrator}"
                       + (f" + orientation {self.orientation}" if orientation else ""))
         if self.contact != "none":
