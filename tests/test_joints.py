@@ -491,3 +491,27 @@ def test_penalty_contact_carries_a_hinged_pair_to_rest():
     contacts = rb.detect_contacts(model, params, last)
     assert bool(jnp.all(jnp.isfinite(traj.pos))) and float(jnp.max(jnp.abs(last.vel))) < 1e-3
     assert float(jnp.max(jnp.where(contacts.active, -contacts.dist, 0.0))) < 1e-3
+
+
+def test_joint_wrenches_are_newtons_law_for_the_swinging_rod():
+    """A hinged rod swinging: the world pushes it with m (a − g), a its centre of mass's acceleration (by
+    autodiff of its position twice): the lower link of a double pendulum takes what its own motion needs, the
+    upper one the whole chain's, and the upper hinge adds no torque to its force's about the rod's centre."""
+    model, params, state = double_pendulum().build(dt=0.01, integrator="semi_implicit")
+    qpos, qvel = jnp.asarray([0.7, -0.4]), jnp.asarray([1.5, -2.0])
+    state = rb.joints.set_qpos_qvel(model, params, state, qpos, qvel)
+    qacc = (rb.make_step(model)(state, params.replace(dt=1e-7)).qvel - qvel) / 1e-7  # forward dynamics
+    force, torque = rb.joints.joint_wrenches(model, params, state, qacc)
+
+    def com(q):
+        return kinematics(model.joints, params, q).com
+
+    def com_rate(q):
+        return jax.jvp(com, (q,), (qvel,))[1]
+
+    accel = jax.jvp(com_rate, (qpos,), (qvel,))[1] + jax.jvp(com, (qpos,), (qacc,))[1]
+    needs = params.mass[:, None] * (accel - params.gravity)
+    np.testing.assert_allclose(force[1], needs[1], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(force[0], needs[0] + needs[1], rtol=1e-5, atol=1e-6)
+    pivot = jnp.asarray([0.0, 0.0, 0.0])  # the upper hinge, 0.25 m above the upper rod's centre (its origin)
+    np.testing.assert_allclose(torque[0] - jnp.cross(pivot - state.pos[0], force[0]), jnp.zeros(3), atol=1e-4)
