@@ -227,7 +227,8 @@ def field_masks(params: Params, fields) -> dict:
     if isinstance(fields, str):
         fields = (fields,)
     if isinstance(fields, Params):
-        fields = {name: getattr(fields, name) for name in PARAM_FIELDS}
+        # A field the scene lacks (joint fields of a scene without joints) is None in both.
+        fields = {name: getattr(fields, name) for name in PARAM_FIELDS if getattr(fields, name) is not None}
     if isinstance(fields, Mapping):
         items = list(fields.items())
     else:
