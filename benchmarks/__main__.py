@@ -3,7 +3,8 @@
 The report committed as docs/benchmarks.md: every section of
 ``python -m jaxrb.bench`` and the two that run other engines, ``peers``
 (:mod:`benchmarks.peers`), ``real_data`` (:mod:`benchmarks.real_data`) and
-``double_pendulum`` (:mod:`benchmarks.double_pendulum`), in
+``double_pendulum`` (:mod:`benchmarks.double_pendulum`), ``joints_accuracy``
+and ``joints_speed`` (:mod:`benchmarks.joints_accuracy`, :mod:`benchmarks.joints_speed`), in
 the order of :data:`SECTIONS`. Run it from the repository's root with the
 ``peers`` extra installed (``pip install -e ".[peers]"``); an engine that is
 missing is a note in the report, not a failure. ``--only peers real_data``
@@ -22,8 +23,8 @@ import sys
 from jaxrb.bench import __main__ as package_report
 
 #: Every section, in report order: jaxrb's own (jaxrb.bench.__main__.SECTIONS) and the peers'.
-SECTIONS = ("real_data", "double_pendulum", "joints_accuracy", "speed_error", "hard_cases", "peers", "tumbling",
-            "throughput", "contact", "gradients", "smoothing")
+SECTIONS = ("real_data", "double_pendulum", "joints_accuracy", "joints_speed", "speed_error", "hard_cases", "peers",
+            "tumbling", "throughput", "contact", "gradients", "smoothing")
 
 
 def _run_peers(quick: bool, out_dir: str, log):
@@ -50,6 +51,12 @@ def _run_joints_accuracy(quick: bool, out_dir: str, log):
     return joints_accuracy.joints_accuracy_section(joints_accuracy.QUICK if quick else joints_accuracy.FULL, log)
 
 
+def _run_joints_speed(quick: bool, out_dir: str, log):
+    from benchmarks import joints_speed
+
+    return joints_speed.joints_speed_section(joints_speed.QUICK if quick else joints_speed.FULL, log)
+
+
 #: The sections this folder adds to jaxrb's report.
 EXTRA = {
     "peers": package_report.Section(
@@ -73,6 +80,11 @@ EXTRA = {
         "gymnasium's inverted pendulums, hopper and ant and a double pendulum from random states, contact and "
         "limits off, h = 1e-4 s: jaxrb's integrators and MuJoCo's Euler against MuJoCo's RK4",
         _run_joints_accuracy),
+    "joints_speed": package_report.Section(
+        "Joints speed beside Brax and MJX, at two vector widths",
+        "a 10-link hinge chain and gymnasium's ant in the air at 1 and 1 024 worlds, the ant on its floor: jaxrb's "
+        "integrators beside Brax's pipelines and MJX, natively and under --xla_cpu_max_isa=AVX2",
+        _run_joints_speed),
 }
 
 

@@ -30,7 +30,7 @@ from typing import Callable, Dict, Optional, Sequence
 
 SECTIONS = ("speed_error", "hard_cases", "tumbling", "throughput", "contact", "gradients", "smoothing")
 #: Sections that moved to ``benchmarks/`` (they import other engines); ``--only`` names them in its error.
-MOVED = ("peers", "real_data", "double_pendulum", "joints_accuracy")
+MOVED = ("peers", "real_data", "double_pendulum", "joints_accuracy", "joints_speed")
 MOVED_TO = "python -m benchmarks"
 
 #: What each mode runs. ``quick`` shows every section at one or two settings
