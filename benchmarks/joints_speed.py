@@ -63,7 +63,9 @@ Settings (:data:`QUICK`, :data:`FULL`; every key starts with ``joints_``):
 ``integrators`` (jaxrb's); ``batches`` and ``floor_batches`` ((worlds, steps)
 pairs); ``widths``; ``repeats`` (timed rounds at most), ``min_repeats`` and
 ``budget_s`` (the rounds stop once this many seconds of calls are spent and
-``min_repeats`` rounds are done); ``mjx_chain_links`` and ``mjx_cap_s``
+``min_repeats`` rounds are done); ``peer_timeout_s`` (a peers' process that
+answers nothing for this long is ended, its group's peers are a note, and a
+new process takes the next group); ``mjx_chain_links`` and ``mjx_cap_s``
 (below).
 
 **MJX on the chain**: on this CPU one ``mjx.step`` of a hinge chain costs
@@ -83,6 +85,7 @@ import dataclasses
 import math
 import os
 import pickle
+import select
 import statistics
 import subprocess
 import sys
@@ -138,15 +141,15 @@ QUICK = dict(
     joints_floor_engines=("jaxrb", "mjx"), joints_integrators=INTEGRATORS,
     joints_batches=((1, 50), (8, 20)), joints_floor_batches=((1, 10), (8, 5)),
     joints_widths=("native",), joints_repeats=2, joints_min_repeats=1, joints_budget_s=1.0,
-    joints_mjx_chain_links=(4, 6), joints_mjx_cap_s=30.0,
+    joints_mjx_chain_links=(4, 6), joints_mjx_cap_s=30.0, joints_peer_timeout_s=300.0,
 )
 #: FULL: every model at 1 and 1 024 worlds, every engine, both widths.
 FULL = dict(
     joints_models=MODELS, joints_engines=ENGINES, joints_floor_engines=("jaxrb", "mjx"),
     joints_integrators=INTEGRATORS,
-    joints_batches=((1, 1000), (1024, 100)), joints_floor_batches=((1, 500), (1024, 20)),
+    joints_batches=((1, 100), (1024, 100)), joints_floor_batches=((1, 500), (1024, 20)),
     joints_widths=("native", "avx2"), joints_repeats=7, joints_min_repeats=3, joints_budget_s=12.0,
-    joints_mjx_chain_links=(6, 7, 8, 9, 10), joints_mjx_cap_s=60.0,
+    joints_mjx_chain_links=(6, 7, 8, 9, 10), joints_mjx_cap_s=60.0, joints_peer_timeout_s=300.0,
 )
 
 
@@ -514,17 +517,24 @@ def prepare_jaxrb(model_name: str, batch: int, steps: int, settings: dict, width
 class _LocalSession:
     """Programs compiled in this process."""
 
-    def __init__(self, programs: List[_Program]):
+    def __init__(self, programs: List[_Program], log=None):
         self.programs = programs
+        self.log = log or (lambda text: None)
 
     def warm(self) -> None:
         for program in self.programs:
+            self._announce(program)
             program.output = jax.block_until_ready(program.call())
+
+    def _announce(self, program: _Program) -> None:
+        self.log(f"joints calling {ENGINE_NAMES[program.row.engine]} ({program.row.scene}, "
+                 f"{program.row.batch} worlds)")
 
     def round(self) -> float:
         """One timed call of every program, in order; returns the seconds spent."""
         spent = 0.0
         for program in self.programs:
+            self._announce(program)
             start = time.perf_counter()
             program.output = jax.block_until_ready(program.call())
             elapsed = time.perf_counter() - start
@@ -576,7 +586,7 @@ def _serve(settings: dict, commands, reply) -> None:
                 model_name, batch, steps, group_engines = pickle.load(handle)
             programs, why = prepare_peers(model_name, batch, steps, group_engines, modules,
                                           settings["_width"], log)
-            session = _LocalSession(programs)
+            session = _LocalSession(programs, log)
             with open(argument, "wb") as handle:
                 pickle.dump({**{e: skipped[e] for e in group_engines if e in skipped}, **why}, handle)
             answer = f"ok {len(programs)}"
@@ -613,10 +623,16 @@ class _ChildSession:
                                         stdout=subprocess.PIPE, stderr=None, text=True,
                                         env=dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=path_list))
         self.count = 0
+        self.timeout_s = settings["joints_peer_timeout_s"]
 
     def _ask(self, command: str) -> str:
         self.process.stdin.write(command + "\n")
         self.process.stdin.flush()
+        # A peer's program that never returns (one hung idle in XLA's runtime here) ends the child.
+        if not select.select([self.process.stdout], [], [], self.timeout_s)[0]:
+            self.process.kill()
+            raise RuntimeError(f"the peers' process gave no answer to {command.split()[0]!r} in "
+                               f"{self.timeout_s:g} s and was ended")
         answer = self.process.stdout.readline()
         if not answer.startswith("ok"):
             raise RuntimeError(f"the peers' process did not answer {command.split()[0]!r} "
@@ -685,9 +701,7 @@ def run_width(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
     modules, skipped = {}, {}
     child_flags = peers.peer_process_flags()
     child = None
-    if peer_engines and child_flags is not None:
-        child = _ChildSession(settings, child_flags)
-    elif peer_engines:
+    if peer_engines and child_flags is None:
         modules, skipped = load_engines(peer_engines)
     rows: List[PeerRow] = []
     try:
@@ -695,12 +709,13 @@ def run_width(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
             engines = _group_engines(model_name, settings)
             programs, why = prepare_jaxrb(model_name, batch, steps, settings, width, log)
             skipped.update(why)
-            if child is not None:
+            if child_flags is not None and peer_engines:
+                child = child or _ChildSession(settings, child_flags)
                 try:
                     skipped.update(child.prepare(model_name, batch, steps, engines))
                     remote = child if child.count else None
                 except RuntimeError as error:
-                    skipped[f"peers ({model_name})"] = f"failed: {error}"
+                    skipped[f"peers ({model_name}, {batch} worlds)"] = f"failed: {error}"
                     child.close()
                     child, remote = None, None
             else:
@@ -708,15 +723,23 @@ def run_width(settings: dict, log=None) -> Tuple[List[PeerRow], Dict[str, str]]:
                 skipped.update(why)
                 programs += theirs
                 remote = None
-            sessions = [_LocalSession(programs)] + ([remote] if remote is not None else [])
-            for session in sessions:
-                session.warm()
-            spent = 0.0
-            for index in range(max(1, settings["joints_repeats"])):
-                spent += sum(session.round() for session in sessions)
-                if spent > settings["joints_budget_s"] and index + 1 >= settings["joints_min_repeats"]:
-                    break
-            group_rows = [row for session in sessions for row in session.finish()]
+            sessions = [_LocalSession(programs, log)] + ([remote] if remote is not None else [])
+            try:
+                for session in sessions:
+                    session.warm()
+                spent = 0.0
+                for index in range(max(1, settings["joints_repeats"])):
+                    spent += sum(session.round() for session in sessions)
+                    if spent > settings["joints_budget_s"] and index + 1 >= settings["joints_min_repeats"]:
+                        break
+                group_rows = [row for session in sessions for row in session.finish()]
+            except RuntimeError as error:  # the peers' process hung: this group's jaxrb rows alone, a new child next
+                skipped[f"peers ({model_name}, {batch} worlds)"] = f"failed: {error}"
+                child.close()
+                child = None
+                sessions[0].warm()
+                sessions[0].round()
+                group_rows = sessions[0].finish()
             for row in group_rows:
                 log(f"joints {width} {model_name:>9} {ENGINE_NAMES[row.engine]:>16} batch {batch:>5}: "
                     f"{row.setting}: compile {row.compile_s:.2f} s, run {row.run_s:.4f} s "
@@ -927,8 +950,9 @@ def markdown(rows: Sequence[PeerRow], skipped: Dict[str, str], settings: dict) -
         parts += ["**Targets** of the issue \"Joints\" (air models; ratios of body-steps/s):", "",
                   targets_table(targets)]
     if skipped:
+        missing = any(v.startswith("not importable") for v in skipped.values())
         parts += ["**Skipped**: " + "; ".join(f"{ENGINE_NAMES.get(k, k)}: {v}" for k, v in skipped.items())
-                  + ". Install the peers with `pip install -e \".[peers]\"`."]
+                  + (". Install the peers with `pip install -e \".[peers]\"`." if missing else ".")]
     left_out = [MODEL_TITLES[m] for m in MODELS if m not in settings["joints_models"]]
     left_out += [ENGINE_NAMES[e] for e in ENGINES if e not in settings["joints_engines"]]
     left_out += [f"width {w}" for w in WIDTHS if w not in settings["joints_widths"]]
