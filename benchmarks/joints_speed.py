@@ -471,6 +471,19 @@ def mjx_chain_probe(links: Sequence[int], cap_s: float, log) -> List[PeerRow]:
     return rows
 
 
+def _compile_into(programs: List[_Program], skipped: Dict[str, str], label: str, build: Callable[[], _Program],
+                  model_name: str, batch: int, width: str, log) -> None:
+    """``build()`` appended to ``programs``; a failure is a note in ``skipped`` under ``"label (model)"``."""
+    try:
+        program = build()
+    except Exception as error:  # an engine that cannot run this model is a note, not a failure
+        skipped[f"{label} ({model_name})"] = f"failed: {type(error).__name__}: {str(error)[:300]}"
+        log(f"joints {model_name} {label} batch {batch}: FAILED {type(error).__name__}: {error}")
+        return
+    log(f"joints {width} {model_name:>9} {label:>16} batch {batch:>5}: compiled in {program.row.compile_s:.2f} s")
+    programs.append(program)
+
+
 def prepare_peers(model_name: str, batch: int, steps: int, engines: Sequence[str], modules: dict,
                   width: str, log) -> Tuple[List[_Program], Dict[str, str]]:
     """Compile every available peer of ``engines`` for one group; a failure is a note in ``skipped``."""
@@ -478,18 +491,11 @@ def prepare_peers(model_name: str, batch: int, steps: int, engines: Sequence[str
     for engine in engines:
         if engine == "jaxrb" or engine not in modules:
             continue
-        try:
-            if engine == "mjx":
-                program = mjx_program(modules[engine], model_name, batch, steps, width)
-            else:
-                program = brax_program(engine, modules[engine], model_name, batch, steps, width)
-        except Exception as error:
-            skipped[f"{engine} ({model_name})"] = f"failed: {type(error).__name__}: {str(error)[:300]}"
-            log(f"joints {model_name} {engine} batch {batch}: FAILED {type(error).__name__}: {error}")
-            continue
-        log(f"joints {width} {model_name:>9} {ENGINE_NAMES[engine]:>16} batch {batch:>5}: compiled in "
-            f"{program.row.compile_s:.2f} s")
-        programs.append(program)
+        if engine == "mjx":
+            build = lambda: mjx_program(modules[engine], model_name, batch, steps, width)
+        else:
+            build = lambda: brax_program(engine, modules[engine], model_name, batch, steps, width)
+        _compile_into(programs, skipped, ENGINE_NAMES[engine], build, model_name, batch, width, log)
     return programs, skipped
 
 
@@ -500,15 +506,9 @@ def prepare_jaxrb(model_name: str, batch: int, steps: int, settings: dict, width
     if "jaxrb" not in _group_engines(model_name, settings):
         return programs, skipped
     for integrator in settings["joints_integrators"]:
-        try:
-            program = jaxrb_program(model_name, integrator, batch, steps, width)
-        except Exception as error:
-            skipped[f"jaxrb {integrator} ({model_name})"] = f"failed: {type(error).__name__}: {str(error)[:300]}"
-            log(f"joints {model_name} jaxrb {integrator} batch {batch}: FAILED {type(error).__name__}: {error}")
-            continue
-        log(f"joints {width} {model_name:>9} {'jaxrb ' + integrator:>16} batch {batch:>5}: compiled in "
-            f"{program.row.compile_s:.2f} s")
-        programs.append(program)
+        _compile_into(programs, skipped, f"jaxrb {integrator}",
+                      lambda: jaxrb_program(model_name, integrator, batch, steps, width),
+                      model_name, batch, width, log)
     return programs, skipped
 
 

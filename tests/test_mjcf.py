@@ -20,6 +20,7 @@ import pytest
 import jaxrb as rb
 from jaxrb.files import mjcf
 from jaxrb.files import scenefile as sf
+from jaxrb.physics.joints.tree import rotation_matrix
 from conftest import assert_same_build
 
 mujoco = pytest.importorskip("mujoco")
@@ -271,7 +272,7 @@ def test_poses_inertia_and_geom_offsets_match_mujoco(compiler):
     assert_poses_match(mj_model, mj_data, model, state, atol=1e-12)
     for index in range(model.num_bodies):
         body = index + 1
-        rotation = mjcf._rotation(np.asarray(state.quat[index]))
+        rotation = rotation_matrix(np.asarray(state.quat[index]))
         np.testing.assert_allclose(params.mass[index], mj_model.body_mass[body], rtol=1e-12)
         mj_rotation = mj_data.ximat[body].reshape(3, 3)
         np.testing.assert_allclose(rotation @ np.asarray(params.inertia[index]) @ rotation.T,
@@ -283,7 +284,7 @@ def test_poses_inertia_and_geom_offsets_match_mujoco(compiler):
             else ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
         origin = np.asarray(state.pos[index]) - rotation @ np.asarray(params.com_offset[index])
         np.testing.assert_allclose(origin + rotation @ np.asarray(offset), mj_data.geom_xpos[geom], atol=1e-12)
-        np.testing.assert_allclose(rotation @ mjcf._rotation(turn), mj_data.geom_xmat[geom].reshape(3, 3),
+        np.testing.assert_allclose(rotation @ rotation_matrix(turn), mj_data.geom_xmat[geom].reshape(3, 3),
                                    atol=1e-12)
     assert model.shapes[4] is None
     assert model.shapes[2] == rb.Capsule(radius=0.05, half_length=0.5 * np.sqrt(0.14))

@@ -65,6 +65,7 @@ import numpy as np
 from jaxrb.files.common import SceneFile
 from jaxrb.model.joints import Ball, Connect, Fixed, Hinge, Slider, Weld
 from jaxrb.model.shapes import Box, Capsule, Sphere
+from jaxrb.physics.joints.tree import rotation_matrix
 from jaxrb.scene import Scene
 
 DEFAULT_TIMESTEP = 0.002
@@ -93,14 +94,6 @@ def _mujoco():
 def _name(mujoco, model, kind, index):
     found = mujoco.mj_id2name(model, kind, index)
     return found if found else f"#{index}"
-
-
-def _rotation(quat):
-    w, x, y, z = quat
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 class _Converter:
@@ -219,7 +212,7 @@ class _Converter:
             if mass <= 0.0:
                 self.fail(self.element("body", b), "has no mass; a moving jaxrb body needs mass and inertia "
                                                    "(give it an <inertial> or a geom)")
-            rotation = _rotation(m.body_iquat[b])
+            rotation = rotation_matrix(m.body_iquat[b])
             inertia = rotation @ np.diag(m.body_inertia[b]) @ rotation.T
             options = {}
             if geom is not None:
@@ -377,7 +370,7 @@ class _Converter:
             other = index.get(b2)
             name = _name(self.mujoco, m, self.mujoco.mjtObj.mjOBJ_EQUALITY, e)
             if kind == 0:
-                anchor = d.xpos[int(m.eq_obj1id[e])] + _rotation(d.xquat[int(m.eq_obj1id[e])]) @ data[0:3]
+                anchor = d.xpos[int(m.eq_obj1id[e])] + rotation_matrix(d.xquat[int(m.eq_obj1id[e])]) @ data[0:3]
                 scene.add_equality(Connect(anchor=np.array(anchor, float)), index[b1], other, name=name)
             else:
                 relative = self.relative_quat(int(m.eq_obj1id[e]), int(m.eq_obj2id[e]))

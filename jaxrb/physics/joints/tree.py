@@ -62,7 +62,8 @@ class ActuatorSpec:
     force_range: Optional[np.ndarray]
 
 
-def _rotation(quat):
+def rotation_matrix(quat) -> np.ndarray:
+    """(3, 3) rotation matrix of a unit quaternion (w, x, y, z), on the host (NumPy)."""
     w, x, y, z = quat
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -149,7 +150,7 @@ def build_tree(names, origins, quats, joints: list, equalities: list, actuators:
                 order.append(body)
                 placed.add(body)
 
-    rotations = [_rotation(q) for q in quats]
+    rotations = [rotation_matrix(q) for q in quats]
     kinds, joint_body, joint_names, qpos_adr, dof_adr, limited = [], [], [], [], [], []
     body_joints = []
     arrays = {key: [] for key in ("joint_pos", "joint_axis", "joint_ref", "joint_range", "joint_stiffness",
