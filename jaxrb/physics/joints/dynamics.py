@@ -24,11 +24,11 @@ in those terms, explicit in the rest.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.math import quaternion as quat_ops
+from jaxrb.math import small_linalg
 from jaxrb.math.vector import cross, matvec3
 from jaxrb.model.struct import pytree_dataclass
 from jaxrb.model.types import Array, Params
@@ -259,12 +259,12 @@ def forces(model, params: Params, kin: Kinematics, qpos, qvel, h, controls=None,
 @pytree_dataclass
 class Factor:
     """A factored step matrix M̃: Cholesky where it is symmetric, LU where the implicit integrators
-    made it not (their Coriolis and actuator terms).
+    made it not (their Coriolis and actuator terms); :mod:`jaxrb.math.small_linalg` factors it.
 
     Attributes:
-        cholesky: (nv, nv) upper Cholesky factor, or None.
+        cholesky: (nv, nv) lower Cholesky factor, or None.
         lu: (nv, nv) packed LU factors, or None.
-        pivots: (nv,) LU's row pivots, or None.
+        pivots: (nv,) LU's row permutation, or None.
     """
 
     cholesky: Array = None
@@ -275,13 +275,13 @@ class Factor:
 def factor(matrix, symmetric: bool) -> Factor:
     """Factor the (nv, nv) ``matrix`` (Cholesky if ``symmetric``, else LU)."""
     if symmetric:
-        return Factor(cholesky=jax.scipy.linalg.cho_factor(matrix)[0])
-    lu, pivots = jax.scipy.linalg.lu_factor(matrix)
+        return Factor(cholesky=small_linalg.cholesky(matrix))
+    lu, pivots = small_linalg.lu_factor(matrix)
     return Factor(lu=lu, pivots=pivots)
 
 
 def solve(found: Factor, rhs):
     """M̃⁻¹ rhs for rhs (nv,) or (nv, k)."""
     if found.cholesky is not None:
-        return jax.scipy.linalg.cho_solve((found.cholesky, False), rhs)
-    return jax.scipy.linalg.lu_solve((found.lu, found.pivots), rhs)
+        return small_linalg.cholesky_solve(found.cholesky, rhs)
+    return small_linalg.lu_solve(found.lu, found.pivots, rhs)
