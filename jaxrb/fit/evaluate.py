@@ -16,6 +16,11 @@ function takes ``sizes`` to override.
 
 The rollout of one call is one ``vmap`` over the K trajectories, each padded to
 the longest (the padding is simulated but masked out of every error).
+
+Trajectories recorded in joint coordinates (:mod:`jaxrb.fit.joint_data`, the
+elbow tosses) follow that data's protocol instead: each starts three samples
+before first contact from a state estimated in joint coordinates, is scored
+from there, and keeps the tracker's lengths (no calibration).
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.compile import jit
+from jaxrb.fit import joint_data
 from jaxrb.fit.initial_state import (CLEARANCE, quat_exp, quat_multiply, estimate_initial_states, free_flight_residuals, free_samples,
                                      initial_states, length_scale)
 from jaxrb.fit.measured import Trajectories
@@ -77,6 +83,9 @@ class Replay:
         length_scale: the tracker's lengths per true length; position errors
             are multiplied by it, so they are reported in the data's own units.
         every: steps per sample interval (:func:`steps_per_sample`).
+        measured: joint-coordinate data only: the trajectories as recorded,
+            before ``trajectories`` was cut to start where each simulation
+            starts; ``num_free`` then counts their samples before first contact.
     """
 
     model: Model
@@ -87,6 +96,7 @@ class Replay:
     sizes: np.ndarray
     length_scale: float = 1.0
     every: int = 1
+    measured: Optional[Trajectories] = None
 
 
 def steps_per_sample(params: Params, trajectories: Trajectories) -> int:
@@ -116,7 +126,8 @@ def steps_per_sample(params: Params, trajectories: Trajectories) -> int:
 def calibrated(model: Model, params: Params, trajectories: Trajectories, scale: Optional[float] = None):
     """The data in true lengths, the tracker's length scale measured from free flight unless given.
 
-    See :func:`jaxrb.fit.initial_state.length_scale`; ``scale=1`` keeps the data as it is.
+    See :func:`jaxrb.fit.initial_state.length_scale`; ``scale=1`` keeps the data as it is, as it is
+    kept by default for joint-coordinate data (its protocol scores the tracker's lengths).
 
     Args:
         model, params: the scene, for its collision detection and gravity.
@@ -127,20 +138,23 @@ def calibrated(model: Model, params: Params, trajectories: Trajectories, scale: 
         (trajectories with positions and velocities divided by the scale, scale).
     """
     steps_per_sample(params, trajectories)
+    if scale is None and trajectories.qpos is not None:
+        scale = 1.0
     if scale is None:
         scale = length_scale(trajectories, free_samples(model, params, trajectories), np.asarray(params.gravity))
     return trajectories.scaled(1.0 / scale), float(scale)
 
 
 def prepare_replay(model: Model, params: Params, state: State, trajectories: Trajectories, *,
-                   clearance: float = CLEARANCE, sizes: Optional[np.ndarray] = None,
+                   clearance: Optional[float] = None, sizes: Optional[np.ndarray] = None,
                    scale: Optional[float] = None) -> Replay:
     """Estimate every trajectory's initial state and bundle what :func:`simulate` needs.
 
     Args:
         model, params, state: from ``Scene.build(dt=trajectories.sample_dt / k, ...)``.
         trajectories: K measured trajectories of the scene's n bodies.
-        clearance: see :func:`jaxrb.fit.initial_state.free_samples`.
+        clearance: see :func:`jaxrb.fit.initial_state.free_samples`; default
+            its ``CLEARANCE``, or ``JOINT_CLEARANCE`` for joint-coordinate data.
         sizes: (n,) sizes to divide position errors by (default :func:`body_sizes`).
         scale: the tracker's length scale (:func:`calibrated`); measured from
             free flight if None, 1 to take the data's lengths as true.
@@ -149,12 +163,17 @@ def prepare_replay(model: Model, params: Params, state: State, trajectories: Tra
         A :class:`Replay`.
     """
     trajectories, scale = calibrated(model, params, trajectories, scale)
-    num_free = free_samples(model, params, trajectories, clearance)
-    estimate = estimate_initial_states(trajectories, num_free, np.asarray(params.gravity))
     sizes = body_sizes(model) if sizes is None else np.asarray(sizes, dtype=np.float64)
-    return Replay(model=model, step=make_step(model), initial=initial_states(state, estimate),
-                  num_free=num_free, trajectories=trajectories, sizes=sizes,
-                  length_scale=scale, every=steps_per_sample(params, trajectories))
+    common = dict(model=model, step=make_step(model), sizes=sizes, length_scale=scale,
+                  every=steps_per_sample(params, trajectories))
+    if trajectories.qpos is not None:
+        first = joint_data.first_contacts(model, params, trajectories, clearance or joint_data.JOINT_CLEARANCE)
+        start, qpos, qvel = joint_data.estimate_joint_starts(model, params, trajectories, first)
+        return Replay(initial=joint_data.initial_states(model, params, state, qpos, qvel), num_free=first,
+                      trajectories=trajectories.from_samples(start), measured=trajectories, **common)
+    num_free = free_samples(model, params, trajectories, clearance or CLEARANCE)
+    estimate = estimate_initial_states(trajectories, num_free, np.asarray(params.gravity))
+    return Replay(initial=initial_states(state, estimate), num_free=num_free, trajectories=trajectories, **common)
 
 
 def simulate(step: Callable, params: Params, initial: State, num_samples: int, every: int = 1) -> State:
@@ -325,12 +344,27 @@ def noise_floor(replay: Replay, params: Params, draws: int = 4, seed: int = 0) -
         (:class:`Scores` averaged over draws, position noise (m), rotation noise (rad)).
     """
     data, gravity = replay.trajectories, np.asarray(params.gravity)
-    estimate = estimate_initial_states(data, replay.num_free, gravity)
-    position_noise, rotation_noise = (float(np.median(r)) for r in
-                                      free_flight_residuals(data, replay.num_free, estimate, gravity))
+    template = jax.tree_util.tree_map(lambda a: a[0], replay.initial)
+    if replay.measured is not None:  # joint coordinates: noise on the recorded coordinates
+        model = replay.model
+        noise = joint_data.free_flight_noise(model, params, replay.measured, replay.num_free)
+
+        def restart(rng):
+            noisy = joint_data.perturbed(model, params, replay.measured, *noise, rng)
+            _, qpos, qvel = joint_data.estimate_joint_starts(model, params, noisy, replay.num_free)
+            return joint_data.initial_states(model, params, template, qpos, qvel)
+    else:
+        estimate = estimate_initial_states(data, replay.num_free, gravity)
+        noise = tuple(float(np.median(r)) for r in free_flight_residuals(data, replay.num_free, estimate, gravity))
+
+        def restart(rng):
+            noisy = dataclasses.replace(
+                data, pos=data.pos + rng.normal(0.0, noise[0], data.pos.shape),
+                quat=quat_multiply(quat_exp(rng.normal(0.0, noise[1] / np.sqrt(3.0), data.pos.shape)), data.quat))
+            return initial_states(template, estimate_initial_states(noisy, replay.num_free, gravity))
+    position_noise, rotation_noise = noise
     reference = simulate(replay.step, params, replay.initial, data.num_samples, replay.every)
     as_measured = dataclasses.replace(data, pos=np.asarray(reference.pos), quat=np.asarray(reference.quat))
-    template = jax.tree_util.tree_map(lambda a: a[0], replay.initial)
     sizes = np.asarray(replay.sizes) / replay.length_scale
 
     @jit
@@ -341,10 +375,7 @@ def noise_floor(replay: Replay, params: Params, draws: int = 4, seed: int = 0) -
     rng = np.random.default_rng(seed)
     position, rotation = [], []
     for _ in range(draws):
-        noisy = dataclasses.replace(
-            data, pos=data.pos + rng.normal(0.0, position_noise, data.pos.shape),
-            quat=quat_multiply(quat_exp(rng.normal(0.0, rotation_noise / np.sqrt(3.0), data.pos.shape)), data.quat))
-        result = spread(initial_states(template, estimate_initial_states(noisy, replay.num_free, gravity)))
+        result = spread(restart(rng))
         position.append(np.asarray(result[0]))
         rotation.append(np.asarray(result[1]))
     scores = Scores(position=np.mean(position, 0), rotation=np.mean(rotation, 0), ids=data.ids)
@@ -359,9 +390,7 @@ def plot_scores(scores: Scores, path, title: str = "") -> None:
         path: the PNG to write.
         title: the figure's title.
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # the user's backend is left as it is (a notebook's keeps showing figures)
 
     figure, axes = plt.subplots(1, 2, figsize=(9, 3.4))
     for axis, values, label in ((axes[0], scores.position, "position error (% of size)"),

@@ -22,13 +22,18 @@ array              shape           meaning
 ``sample_dt``      ()              sample spacing (s)
 ``angvel_frame``   () str          ``"world"`` or ``"body"``: the frame of ``angvel``
 ``ids``            (K,) int        optional: each trajectory's own number
+``qpos``           (N, nq)         optional: joint coordinates, MuJoCo's layout
+``qvel``           (N, nv)         optional: joint velocities, MuJoCo's layout
 =================  ==============  ===============================================
 
 **state-row layout** (the DAIR Lab cube tosses, ``examples/cube_tosses``):
 ``states`` (N, 13·n) rows of ``quat, pos, angvel, vel`` per body, ``start``
 (K + 1,) and optionally ``toss_id`` (K,). It carries no sample spacing and no
 frame, so :func:`load_trajectories` needs ``sample_dt=`` and ``angvel_frame=``
-for it (the cube tosses: ``1/148`` and ``"body"``).
+for it (the cube tosses: ``1/148`` and ``"body"``). Articulated bodies recorded
+in joint coordinates (the elbow tosses) are read with their model by
+:func:`jaxrb.fit.joint_data.load_joint_trajectories`, which adds every body's
+pose by the model's kinematics.
 
 Angular velocity is converted to the world frame on loading (the State's
 frame). A file that is malformed (a missing or misshapen array, NaN or
@@ -65,6 +70,9 @@ class Trajectories:
         sample_dt: sample spacing (s).
         ids: (K,) each trajectory's own number (its index in the file by default).
         source: where the data came from, for messages.
+        qpos: (K, T, nq) joint coordinates (MuJoCo's layout, hinge angles
+            unwrapped), or None for free bodies (:mod:`jaxrb.fit.joint_data`).
+        qvel: (K, T, nv) joint velocities, or None.
     """
 
     pos: np.ndarray
@@ -75,6 +83,8 @@ class Trajectories:
     sample_dt: float
     ids: np.ndarray
     source: str = "trajectories"
+    qpos: Optional[np.ndarray] = None
+    qvel: Optional[np.ndarray] = None
 
     @property
     def num_trajectories(self) -> int:
@@ -106,7 +116,29 @@ class Trajectories:
         keep = int(self.length[index].max())
         cut = lambda a: None if a is None else a[index, :keep]  # noqa: E731
         return dataclasses.replace(self, pos=cut(self.pos), quat=cut(self.quat), vel=cut(self.vel),
-                                   angvel=cut(self.angvel), length=self.length[index], ids=self.ids[index])
+                                   angvel=cut(self.angvel), qpos=cut(self.qpos), qvel=cut(self.qvel),
+                                   length=self.length[index], ids=self.ids[index])
+
+    def from_samples(self, first) -> "Trajectories":
+        """Each trajectory from its own first sample on, padded to the new longest.
+
+        Args:
+            first: (K,) int, the sample each trajectory now starts at (below its length).
+
+        Returns:
+            :class:`Trajectories`.
+        """
+        first = np.asarray(first, dtype=np.int64)
+        if first.shape != (self.num_trajectories,) or np.any(first < 0) or np.any(first >= self.length - 1):
+            raise ValueError(f"{self.source}: from_samples: need one start per trajectory, each at least 2 "
+                             f"samples before its end; got {first!r}")
+        length = self.length - first
+        index = np.minimum(first[:, None] + np.arange(int(length.max()))[None], self.length[:, None] - 1)
+        rows = np.arange(self.num_trajectories)[:, None]
+        cut = lambda a: None if a is None else a[rows, index]  # noqa: E731
+        return dataclasses.replace(self, pos=cut(self.pos), quat=cut(self.quat), vel=cut(self.vel),
+                                   angvel=cut(self.angvel), qpos=cut(self.qpos), qvel=cut(self.qvel),
+                                   length=length)
 
     def scaled(self, factor: float) -> "Trajectories":
         """The same trajectories in another length unit.
@@ -117,6 +149,10 @@ class Trajectories:
         Returns:
             :class:`Trajectories`.
         """
+        if self.qpos is not None and factor != 1.0:
+            # Which joint coordinates are lengths is the model's to say; the protocols that record joint
+            # coordinates (the elbow tosses) score the data as it is.
+            raise ValueError(f"{self.source}: joint-coordinate trajectories are not rescaled; use scale=1")
         return dataclasses.replace(self, pos=self.pos * factor, vel=None if self.vel is None else self.vel * factor)
 
     def split(self, fraction: float = 0.5, seed: int = 0):
@@ -151,8 +187,9 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
 
     Args:
         pieces: one dict per trajectory with ``pos`` (L, n, 3) and ``quat``
-            (L, n, 4), optionally ``vel`` and ``angvel`` (L, n, 3); every
-            trajectory must have the same optional arrays and body count.
+            (L, n, 4), optionally ``vel`` and ``angvel`` (L, n, 3) and
+            ``qpos`` (L, nq), ``qvel`` (L, nv); every trajectory must have
+            the same optional arrays and body count.
         sample_dt: sample spacing (s), > 0.
         angvel_frame: ``"world"`` or ``"body"``, the frame of ``angvel``.
         ids: (K,) the trajectories' own numbers (default 0..K-1).
@@ -175,6 +212,7 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
     if ids.shape != (len(pieces),):
         raise ValueError(f"{source}: ids: expected shape ({len(pieces)},), got {ids.shape}")
     optional = [name for name in ("vel", "angvel") if pieces[0].get(name) is not None]
+    coordinates = [name for name in ("qpos", "qvel") if pieces[0].get(name) is not None]
     width = {"pos": 3, "quat": 4, "vel": 3, "angvel": 3}
     checked = []
     num_bodies = None
@@ -192,8 +230,18 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
                 raise ValueError(f"{where}: '{name}' must have shape (samples, bodies, {width[name]}), "
                                  f"got {value.shape}")
             arrays[name] = value
+        for name in coordinates:
+            value = np.asarray(piece.get(name, np.empty((0, 0))), dtype=np.float64)
+            columns = np.shape(pieces[0][name])[-1]
+            if value.ndim != 2 or value.shape != (len(arrays["pos"]), columns):
+                raise ValueError(f"{where}: '{name}' must have shape ({len(arrays['pos'])}, {columns}), "
+                                 f"got {value.shape}")
+            bad = np.argwhere(~np.isfinite(value))
+            if bad.size:
+                raise ValueError(f"{where}: '{name}' sample {bad[0][0]}, column {bad[0][1]}: not a finite number")
+            arrays[name] = value
         lengths = {value.shape[0] for value in arrays.values()}
-        bodies = {value.shape[1] for value in arrays.values()}
+        bodies = {value.shape[1] for name, value in arrays.items() if name not in coordinates}
         if len(lengths) != 1 or len(bodies) != 1:
             raise ValueError(f"{where}: arrays disagree in samples or bodies: "
                              + ", ".join(f"{n} {v.shape}" for n, v in arrays.items()))
@@ -205,6 +253,8 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
         elif bodies.pop() != num_bodies:
             raise ValueError(f"{where}: has {arrays['pos'].shape[1]} bodies, trajectory 0 has {num_bodies}")
         for name, value in arrays.items():
+            if name in coordinates:
+                continue
             bad = ~np.isfinite(value)
             if bad.any():
                 sample, body, column = np.argwhere(bad)[0]
@@ -234,7 +284,8 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
         return out
 
     return Trajectories(pos=padded("pos"), quat=padded("quat"), vel=padded("vel"), angvel=padded("angvel"),
-                        length=length, sample_dt=float(sample_dt), ids=ids, source=source)
+                        length=length, sample_dt=float(sample_dt), ids=ids, source=source,
+                        qpos=padded("qpos"), qvel=padded("qvel"))
 
 
 def _require(data, name, source):
@@ -293,7 +344,8 @@ def load_trajectories(path, *, sample_dt: Optional[float] = None,
         columns = {name: rows[..., cut] for name, cut in STATE_ROW_COLUMNS.items()}
         ids = data.get("toss_id", data.get("ids"))
     else:
-        columns = {name: np.asarray(data[name]) for name in ("pos", "quat", "vel", "angvel") if name in data}
+        columns = {name: np.asarray(data[name]) for name in ("pos", "quat", "vel", "angvel", "qpos", "qvel")
+                   if name in data}
         for name in ("pos", "quat"):
             _require(data, name, source)
         stored = {"sample_dt": float(_require(data, "sample_dt", source)),
@@ -322,7 +374,7 @@ def save_trajectories(path, trajectories: Trajectories) -> None:
               "start": np.concatenate([[0], np.cumsum(trajectories.length)]).astype(np.int64),
               "sample_dt": np.float64(trajectories.sample_dt), "angvel_frame": np.str_("world"),
               "ids": np.asarray(trajectories.ids, dtype=np.int64)}
-    for name in ("vel", "angvel"):
+    for name in ("vel", "angvel", "qpos", "qvel"):
         if getattr(trajectories, name) is not None:
             arrays[name] = flat(getattr(trajectories, name))
     np.savez(path, **arrays)

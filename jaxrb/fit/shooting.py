@@ -11,7 +11,8 @@ so no error has time to grow through a chain of impacts.
 
 A segment is (trajectory k, start sample s): its initial State is the
 measured pose and velocity at s (measured velocities if the data has them,
-else central differences of the poses), its targets the measured poses at
+else central differences of the poses; for articulated bodies the measured
+joint coordinates, of which the poses are the read-out), its targets the measured poses at
 s + 1 … s + horizon. Residuals per predicted sample are the position error in
 fractions of the body's size and the rotation error's vector in radians
 times :data:`ROTATION_WEIGHT`, which makes 10° count like 10 % of the size,
@@ -95,6 +96,9 @@ def make_segments(template: State, trajectories: Trajectories, horizon: int, str
     start = start.replace(pos=jnp.asarray(trajectories.pos[k, s], dtype),
                           quat=jnp.asarray(trajectories.quat[k, s], dtype),
                           vel=jnp.asarray(vel[k, s], dtype), angvel=jnp.asarray(angvel[k, s], dtype))
+    if trajectories.qpos is not None:  # a scene with joints steps its coordinates; the poses above are their read-out
+        start = start.replace(qpos=jnp.asarray(trajectories.qpos[k, s], dtype),
+                              qvel=jnp.asarray(trajectories.qvel[k, s], dtype))
     return Segments(start=start, pos=jnp.asarray(trajectories.pos[k[:, None], ahead], dtype),
                     quat=jnp.asarray(trajectories.quat[k[:, None], ahead], dtype),
                     trajectory=k, sample=s, horizon=horizon)
