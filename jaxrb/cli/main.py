@@ -42,8 +42,12 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", required=True, help="the fitted scene file to write (.json)")
     fit.add_argument("--fields", nargs="+", default=["friction", "restitution"],
                      help="Params fields to fit (default: friction restitution)")
-    fit.add_argument("--horizons", type=int, nargs="+", default=[8, 32],
-                     help="samples predicted from each measured state, one fitting stage each (default 8 32)")
+    fit.add_argument("--horizons", type=int, nargs="*", default=[8, 32],
+                     help="samples predicted from each measured state, one fitting stage each (default 8 32); "
+                          "none (--horizons with no value): full rollouts only, forward search")
+    fit.add_argument("--search-width", type=float, default=0.2,
+                     help="first step of the forward search on full rollouts, in the fields' unconstrained units "
+                          "(default 0.2; 1: a factor e for a log-transformed field)")
     fit.add_argument("--budget", type=float, help="time budget in seconds, compile included")
     fit.add_argument("--resume", metavar="STATE.json", help="save progress here and resume from it")
     evaluate = commands.choices["evaluate"]
@@ -89,6 +93,7 @@ def main(argv=None) -> int:
             if args.command == "fit":
                 print(data_commands.fit_command(args.scene_file, args.data, args.out, fields=args.fields,
                                                 horizons=args.horizons, time_budget=args.budget,
+                                                search_width=args.search_width,
                                                 state_path=args.resume, **common))
             else:
                 print(data_commands.evaluate_command(args.scene_file, args.data, plot=args.plot,

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 import warnings
 from typing import Callable, Optional, Sequence
@@ -42,7 +43,8 @@ from jaxrb.fit import least_squares
 
 from jaxrb.fit import shooting
 from jaxrb.fit.evaluate import body_sizes, calibrated
-from jaxrb.fit.measured import Trajectories
+from jaxrb.fit.joint_data import load_joint_trajectories
+from jaxrb.fit.measured import Trajectories, load_trajectories
 from jaxrb.fit.parameter_transforms import DEFAULT_TRANSFORMS, from_unconstrained, to_unconstrained
 from jaxrb.files.scenefile import SceneFile, load_scene, scene_to_dict
 from jaxrb.physics.step import make_step
@@ -73,7 +75,8 @@ class DataFit:
         reliability: {field: array} gradient signal-to-noise where the last
             LM stage started (:func:`jaxrb.fit.least_squares.gradient_reliability`);
             below 2 the trajectories disagree on which way the field should move.
-        result: the :class:`~jaxrb.fit.least_squares.LeastSquaresResult`.
+        result: the last LM stage's :class:`~jaxrb.fit.least_squares.LeastSquaresResult`,
+            None when the fit was the rollout search alone.
         length_scale: the tracker's lengths per true length used.
         seconds: wall time of the fit, compile included.
         path: one dict per LM iteration and rollout-search round, in order:
@@ -85,10 +88,17 @@ class DataFit:
     fields: tuple
     standard_errors: dict
     reliability: dict
-    result: least_squares.LeastSquaresResult
+    result: Optional[least_squares.LeastSquaresResult]
     length_scale: float
     seconds: float
     path: list = dataclasses.field(default_factory=list)
+
+    @property
+    def stages(self) -> str:
+        """How the fit went, in words: its LM iterations and why they stopped, or the rollout search alone."""
+        if self.result is None:
+            return "rollout search only"
+        return f"{self.result.iterations} LM iterations, {self.result.stopped}"
 
     def table(self) -> str:
         """One line per fitted field: value ± standard error, gradient signal-to-noise.
@@ -103,8 +113,9 @@ class DataFit:
             snr = np.ravel(self.reliability[name])
             for i in range(value.size):
                 label = name if value.size == 1 else f"{name}[{i}]"
-                lines.append(f"{label:>22s} = {value[i]:.5g} ± {error[i]:.2g}  (gradient signal/noise "
-                             f"{snr[i]:.2g}{', unreliable' if snr[i] < 2 else ''})")
+                judged = ("forward search only" if np.isnan(snr[i]) else
+                          f"gradient signal/noise {snr[i]:.2g}{', unreliable' if snr[i] < 2 else ''}")
+                lines.append(f"{label:>22s} = {value[i]:.5g} ± {error[i]:.2g}  ({judged})")
         if {"friction", "plane_friction"} & set(self.fields):
             # Contacts mix √(μ_body μ_plane): only the product is identified, so fit one side and
             # read the pair's coefficient here.
@@ -138,6 +149,30 @@ def build_for_data(scene_path, trajectories: Trajectories):
     model, params, state = scene_file.build(dt=trajectories.sample_dt / every, substeps=1,
                                             dtype=options.get("dtype", "float32"))
     return scene_file, model, params, state
+
+
+def load_for_scene(data_path, scene_path, *, sample_dt: Optional[float] = None,
+                   angvel_frame: Optional[str] = None) -> Trajectories:
+    """Read measured trajectories as the scene records them: joint coordinates if it has joints, else poses.
+
+    Args:
+        data_path: the ``.npz`` data (:mod:`jaxrb.fit.measured`, :mod:`jaxrb.fit.joint_data`).
+        scene_path: the scene file the data will be fitted or scored with.
+        sample_dt: sample spacing (s), for files that do not record it (joint rows never do).
+        angvel_frame: ``"world"`` or ``"body"``, likewise (joint rows: ``"body"`` by default).
+
+    Returns:
+        :class:`~jaxrb.fit.measured.Trajectories`.
+    """
+    scene_file = load_scene(scene_path)
+    model, params, _ = scene_file.build(dt=sample_dt or 0.01, substeps=1)  # for its joints' kinematics only
+    if model.joints is None:
+        return load_trajectories(data_path, sample_dt=sample_dt, angvel_frame=angvel_frame)
+    if sample_dt is None:
+        raise ValueError(f"{os.fspath(data_path)}: joint-coordinate rows do not record the sample spacing; "
+                         "pass sample_dt (--sample-dt; the elbow tosses: 1/148)")
+    return load_joint_trajectories(data_path, model, params, sample_dt=sample_dt,
+                                   angvel_frame=angvel_frame or "body")
 
 
 def check_fields(fields: Sequence[str]) -> tuple:
@@ -222,7 +257,8 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
                  horizons: Sequence[int] = (8, 32), stride: int = 2, starts: int = 4, spread: float = 0.5,
                  seed: int = 0, max_iterations: int = 20, tol: float = 1e-3, refine_rounds: int = 3,
                  time_budget: Optional[float] = None, progress: Optional[Callable[[str], None]] = None,
-                 state_path: Optional[str] = None, scale: Optional[float] = None) -> DataFit:
+                 state_path: Optional[str] = None, scale: Optional[float] = None,
+                 search_width: float = 0.2) -> DataFit:
     """Fit ``fields`` of ``params`` to ``trajectories`` (module docstring).
 
     Stages: ``starts`` candidate starting points costed on the first horizon,
@@ -240,7 +276,10 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
             that starts at 0 or 1 is fitted on the closed interval (the
             ``"clip"`` transform of :mod:`jaxrb.fit.parameter_transforms`),
             others with that module's default transforms.
-        horizons: samples predicted from each measured start, one LM stage each.
+        horizons: samples predicted from each measured start, one LM stage each;
+            none (``()``): the rollout search alone, forward only (the elbow
+            tosses, where short horizons pulled friction away from what full
+            rollouts want).
         stride: samples between starts.
         starts: candidate starting points (the given one and ``starts − 1``
             drawn around it, each unconstrained coordinate ± ``spread``).
@@ -256,6 +295,7 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         progress: called with progress lines (e.g. ``print``).
         state_path: LM state file of the last horizon's stage (resumable).
         scale: the tracker's length scale; measured from free flight if None.
+        search_width: the rollout search's first step (unconstrained units).
 
     Returns:
         :class:`DataFit`: ``params`` holds the refined values, the standard
@@ -318,12 +358,16 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
         theta = result.theta
         for entry in result.history:
             record(f"horizon {horizon}", np.asarray(entry[4]), entry[1])
-    covariance, start_gradients = result.covariance, result.start_gradients
-    if refine_rounds and (left() is None or left() > 0):
+    if result is None and not refine_rounds:
+        raise ValueError("fit_measured: no horizons and no rollout search: nothing to fit")
+    covariance = None if result is None else result.covariance
+    # Without a gradient stage there is no gradient to judge: NaN reliability, shown as such.
+    start_gradients = np.full((1, theta.size), np.nan) if result is None else result.start_gradients
+    if refine_rounds and (result is None or left() is None or left() > 0):
         replay = evaluate.prepare_replay(model, params, state, trajectories, scale=scale)
         losses = rollout_losses(replay)
         theta, _, resolution, rounds = refine_on_rollouts(lambda t: jnp.mean(losses(to_params(t))), theta,
-                                                          refine_rounds, say=say)
+                                                          refine_rounds, search_width, say=say)
         for point, loss in rounds:
             record("rollout search", point, loss)
         # The values now minimise the rollout loss: their uncertainty is that loss's minimum's, by a
@@ -335,7 +379,11 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
     # Standard errors of the values: the delta method through the transforms.
     values = lambda t: ravel_pytree({name: getattr(to_params(t), name) for name in fields})[0]  # noqa: E731
     slope = np.asarray(jax.jacfwd(values)(jnp.asarray(theta, dtype)), np.float64)  # (V, P)
-    value_errors = np.sqrt(np.maximum(np.einsum("vp,pq,vq->v", slope, covariance, slope), 0.0))
+    # Terms whose slope is 0 are left out, not 0 × inf: a coordinate the data leave undetermined (an
+    # infinite bootstrap error) makes only the values that depend on it undetermined.
+    outer = slope[:, :, None] * slope[:, None, :]  # (V, P, P)
+    terms = np.where(outer != 0, outer * covariance[None], 0.0)
+    value_errors = np.sqrt(np.maximum(terms.sum(axis=(1, 2)), 0.0))
     snr = least_squares.gradient_reliability(start_gradients @ slope.T)  # per value
     _, unravel_values = ravel_pytree({name: np.asarray(getattr(fitted, name), np.float64) for name in fields})
     return DataFit(params=fitted, fields=fields, standard_errors=unravel_values(value_errors),
