@@ -289,7 +289,7 @@ def sweep(fn: Callable, params_batch: Optional[Params] = None, states_batch: Opt
             stage: at 1 024 worlds the penalty box slide 1.6x as fast at 64,
             impulse contact's box drop 1.3x at 128. A 10-box column over 256
             worlds ran slower in chunks (0.84x at 64): its vmap is already
-            large (docs/design.md, 'Batches on a CPU'). On a GPU the whole
+            large (docs/design.md, 'Layout'). On a GPU the whole
             batch at once fills the device.
 
     Returns:

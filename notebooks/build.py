@@ -23,7 +23,7 @@ import nbformat
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 NOTEBOOKS = ("quickstart", "dzhanibekov", "contact_models", "system_identification",
-             "parameter_sweep", "speed_vs_error", "cube_tosses", "joints_chain", "gym_hopper")
+             "parameter_sweep", "speed_vs_error", "cube_tosses", "elbow_tosses", "joints_chain", "gym_hopper")
 
 
 def cells_of(script: str) -> list:

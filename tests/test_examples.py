@@ -26,6 +26,7 @@ PICTURES = {
     "speed_vs_error": ["speed_vs_error.png"],
     "cube_tosses": ["cube_tosses_fit.png", "cube_tosses_errors.png", "cube_tosses_trajectories.png",
                     "cube_tosses.gif"],
+    "elbow_tosses": ["elbow_tosses_errors.png", "elbow_tosses_trajectories.png", "elbow_tosses.gif"],
     "sysid_bounce": [],
     "joints_chain": ["joints_chain_energy.png", "joints_chain.gif", "newtons_cradle.gif"],
     "gym_hopper": ["gym_hopper_torso.png", "gym_hopper.png", "gym_hopper.gif"],

@@ -44,6 +44,8 @@ def check_fitting(namespace, printed):
     """The measured-motion fit (six tosses) ran to its table and its score, within its budget."""
     assert "penalty_damping =" in printed and "over 6 trajectories" in printed
     assert namespace["fit"].seconds < 240
+    # The elbow: joint rows read as the scene's coordinates, scored by the data's protocol.
+    assert namespace["data"].qpos.shape == (400, 121, 8) and "over 4 trajectories" in printed
 
 
 AFTER = {"fitting.md": check_fitting}

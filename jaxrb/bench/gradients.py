@@ -104,7 +104,7 @@ BATCHED_AUTODIFF = ("box_bounce_jacobi",)
 #: milliseconds, and on a noisy host the median of 5 of them was no figure:
 #: ten medians of 5 in one process spread over 2.3-3.8x for the penalty box
 #: drop's adjoint, whose medians of 201 read 3.2-3.8x in three processes
-#: (docs/design.md, 'Gradient ratios').
+#: (docs/design.md, 'Reverse mode').
 DEFAULT_SETTINGS = dict(gradient_scenes=("tumble", "box_bounce", "box_bounce_jacobi", "box_drop_penalty"),
                         gradient_methods=tuple(METHODS), gradient_memory_steps=(1000, 10000),
                         gradient_time_steps=1000, gradient_batch=1024,
