@@ -34,9 +34,12 @@ def _run_peers(quick: bool, out_dir: str, log):
 
 
 def _run_real_data(quick: bool, out_dir: str, log):
-    from benchmarks import real_data
+    from benchmarks import elbow_tosses, real_data
 
-    return real_data.real_data_section(real_data.QUICK if quick else real_data.FULL, log)
+    cube, cube_results = real_data.real_data_section(real_data.QUICK if quick else real_data.FULL, log)
+    elbow, elbow_results = elbow_tosses.elbow_section(elbow_tosses.QUICK if quick else elbow_tosses.FULL, log)
+    return (f"**Cube tosses.** {cube}\n\n**Elbow tosses: two hinged blocks, joints and contact.** {elbow}",
+            {"cube": cube_results, "elbow": elbow_results})
 
 
 def _run_double_pendulum(quick: bool, out_dir: str, log):
@@ -65,9 +68,10 @@ EXTRA = {
         "and the issue's targets",
         _run_peers),
     "real_data": package_report.Section(
-        "Real data: measured cube tosses beside MuJoCo and Bullet",
-        "400 measured cube tosses, half fitted, half scored; MuJoCo and Bullet with the publishers' "
-        "parameters (examples/cube_tosses)",
+        "Real data: measured cube and elbow tosses beside MuJoCo and Bullet",
+        "400 measured cube tosses and 400 tosses of two hinged blocks, half fitted, half scored; MuJoCo and "
+        "Bullet with the publishers' parameters (cubes, examples/cube_tosses) and fitted on the same half "
+        "(elbow, examples/elbow_tosses)",
         _run_real_data),
     "double_pendulum": package_report.Section(
         "Real data: a double pendulum beside its publishers' model",

@@ -382,7 +382,8 @@ def fit_measured(model: Model, params: Params, state: State, trajectories: Traje
     # Terms whose slope is 0 are left out, not 0 × inf: a coordinate the data leave undetermined (an
     # infinite bootstrap error) makes only the values that depend on it undetermined.
     outer = slope[:, :, None] * slope[:, None, :]  # (V, P, P)
-    terms = np.where(outer != 0, outer * covariance[None], 0.0)
+    with np.errstate(invalid="ignore"):  # inf × 0 where the slope is 0: discarded by the where
+        terms = np.where(outer != 0, outer * covariance[None], 0.0)
     value_errors = np.sqrt(np.maximum(terms.sum(axis=(1, 2)), 0.0))
     snr = least_squares.gradient_reliability(start_gradients @ slope.T)  # per value
     _, unravel_values = ravel_pytree({name: np.asarray(getattr(fitted, name), np.float64) for name in fields})
