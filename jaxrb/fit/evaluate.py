@@ -333,6 +333,8 @@ def noise_floor(replay: Replay, params: Params, draws: int = 4, seed: int = 0) -
     trajectories, per axis and per rotation) to the free samples, estimates
     the initial states again, simulates, and scores the result against the
     simulation from the unperturbed estimate, with the protocol's metric.
+    Joint-coordinate data get the noise on their recorded coordinates
+    (:func:`jaxrb.fit.joint_data.free_flight_noise`, :func:`~jaxrb.fit.joint_data.perturbed`).
 
     Args:
         replay: from :func:`prepare_replay`.

@@ -238,15 +238,17 @@ def refine_on_rollouts(loss: Callable, theta, rounds: int = 3, width: float = 0.
     batch = jax.jit(jax.vmap(loss))
     theta = np.asarray(theta, np.float64)
     offsets = np.array([0.0, -1.0, -0.5, 0.5, 1.0])
-    best, path = None, []
+    best, path, failed = None, [], 0
     for round_ in range(rounds):
         for i in range(theta.size):
             candidates = np.repeat(theta[None], offsets.size, axis=0)
             candidates[:, i] += width * offsets
             losses = np.asarray(batch(jnp.asarray(candidates, jnp.result_type(float))), np.float64)
+            failed += int(np.sum(~np.isfinite(losses)))
             losses = np.where(np.isfinite(losses), losses, np.inf)
             theta, best = candidates[int(np.argmin(losses))], float(np.min(losses))
-        say(f"rollout search round {round_ + 1} (step {width:.3g}): loss {best:.5g}")
+        say(f"rollout search round {round_ + 1} (step {width:.3g}): loss {best:.5g}"
+            + (f"; {failed} candidates' rollouts not finite so far" if failed else ""))
         path.append((theta.copy(), best))
         resolution = 0.5 * width
         width /= 3.0
