@@ -45,6 +45,8 @@ import time
 
 import numpy as np
 
+from jaxrb.fit.measured import rotate_vectors
+
 #: The data's folder (``elbow_tosses.npz``, ``models/contactnets_elbow.urdf``), or ``JAXRB_ELBOW_TOSSES``.
 DEFAULT_FOLDER = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "examples",
                               "elbow_tosses")
@@ -78,13 +80,6 @@ def data_paths() -> tuple:
     """
     folder = os.environ.get("JAXRB_ELBOW_TOSSES", DEFAULT_FOLDER)
     return os.path.join(folder, "elbow_tosses.npz"), os.path.join(folder, "models", "contactnets_elbow.urdf")
-
-
-def _rotate(quat, vectors):
-    """Rotate vectors (K, 3) by unit quaternions (K, 4) (w, x, y, z), body to world."""
-    w, axis = quat[:, :1], quat[:, 1:]
-    twice = 2.0 * np.cross(axis, vectors)
-    return vectors + w * twice + np.cross(axis, twice)
 
 
 def mujoco_xml(sample_dt: float, parameters: dict, table: bool = True) -> str:
@@ -189,7 +184,7 @@ def simulate_bullet(qpos0, qvel0, num_samples: int, sample_dt: float, parameters
     side = int(np.ceil(np.sqrt(count)))
     offsets = np.zeros((count, 3))
     offsets[:, 0], offsets[:, 1] = spacing * (np.arange(count) % side), spacing * (np.arange(count) // side)
-    angvel = _rotate(qpos0[:, 3:7], qvel0[:, 3:6])  # pybullet wants it in the world frame
+    angvel = rotate_vectors(qpos0[:, 3:7], qvel0[:, 3:6])  # pybullet wants it in the world frame
     get = lambda name: parameters.get(name)  # noqa: E731
     client = pybullet.connect(pybullet.DIRECT)
     try:

@@ -13,7 +13,7 @@ import pytest
 import jaxrb as rb
 from jaxrb.fit import evaluate, fit_data, joint_data
 from jaxrb.fit.initial_state import quat_conjugate, quat_log, quat_multiply
-from jaxrb.fit.measured import _rotate, load_trajectories, save_trajectories
+from jaxrb.fit.measured import load_trajectories, rotate_vectors, save_trajectories
 
 FOLDER = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "examples", "elbow_tosses")
 DATA = os.path.join(FOLDER, "elbow_tosses.npz")
@@ -35,7 +35,7 @@ def tosses(scene):
 
 def lowest_corner(pos, quat):
     """(...,) height of the lowest of both boxes' 8 corners; pos (..., 2, 3), quat (..., 2, 4)."""
-    corners = pos[..., None, :] + _rotate(np.repeat(quat[..., None, :], 8, -2),
+    corners = pos[..., None, :] + rotate_vectors(np.repeat(quat[..., None, :], 8, -2),
                                           np.broadcast_to(CORNERS, pos.shape[:-1] + (8, 3)))
     return corners[..., 2].min(axis=(-1, -2))
 
@@ -78,10 +78,10 @@ def test_initial_states_follow_the_protocol(scene, tosses):
     assert np.array_equal(start, np.maximum(first - 3, 0))
     k = int(np.flatnonzero(first >= 5)[0])
     poses = joint_data.body_poses(model, params, qpos[k], qvel[k])
-    omega1 = _rotate(qpos[k, 3:7], qvel[k, 3:6])
-    omega2 = omega1 + qvel[k, 6] * _rotate(qpos[k, 3:7], np.array([0.0, 1.0, 0.0]))
-    hinge = _rotate(qpos[k, 3:7], np.array([-0.035, 0.06, 0.0]))
-    arm2 = _rotate(poses["quat"][1], np.array([0.035, 0.0, 0.0]))
+    omega1 = rotate_vectors(qpos[k, 3:7], qvel[k, 3:6])
+    omega2 = omega1 + qvel[k, 6] * rotate_vectors(qpos[k, 3:7], np.array([0.0, 1.0, 0.0]))
+    hinge = rotate_vectors(qpos[k, 3:7], np.array([-0.035, 0.06, 0.0]))
+    arm2 = rotate_vectors(poses["quat"][1], np.array([0.035, 0.0, 0.0]))
     com_vel = poses["vel"].mean(axis=0)
     np.testing.assert_allclose(qvel[k, :3], com_vel - 0.5 * (np.cross(omega1, hinge) + np.cross(omega2, arm2)),
                                atol=1e-5)

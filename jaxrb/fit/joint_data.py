@@ -43,6 +43,7 @@ keep their measured state at s. Scoring then runs from s to the end
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 
 import jax
@@ -50,8 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrb.fit.initial_state import free_samples, quat_conjugate, quat_log, quat_multiply
-from jaxrb.fit.measured import (ANGVEL_FRAMES, Trajectories, _check_start, _require, _rotate,
-                                make_trajectories)
+from jaxrb.fit.measured import (ANGVEL_FRAMES, Trajectories, _check_start, _read_npz, _require,
+                                make_trajectories, rotate_vectors)
 from jaxrb.model.types import Model, Params, State
 from jaxrb.physics.joints.coordinates import set_qpos_qvel
 
@@ -80,6 +81,19 @@ def _floating_base_joints(model: Model, source: str) -> np.ndarray:
     return np.arange(7, tree.nq)
 
 
+@functools.lru_cache(maxsize=8)
+def _kinematics_reader(model: Model):
+    """``read(params, qpos (B, nq), qvel (B, nv)) -> State`` (B bodies' read-outs), jitted once per Model:
+    the estimate, the noise floor and loading call it many times."""
+
+    def read(params, qpos, qvel):
+        template = State(pos=jnp.zeros((model.num_bodies, 3), params.mass.dtype), vel=None, angvel=None,
+                         quat=None, angle=None, time=jnp.zeros((), params.mass.dtype))
+        return set_qpos_qvel(model, params, template, qpos, qvel)
+
+    return jax.jit(jax.vmap(read, in_axes=(None, 0, 0)))
+
+
 def body_poses(model: Model, params: Params, qpos, qvel) -> dict:
     """Every body's pose and velocity at the given coordinates, by the model's kinematics.
 
@@ -93,10 +107,7 @@ def body_poses(model: Model, params: Params, qpos, qvel) -> dict:
     """
     qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
     batch = qpos.shape[:-1]
-    template = State(pos=jnp.zeros((model.num_bodies, 3), params.mass.dtype), vel=None, angvel=None,
-                     quat=None, angle=None, time=jnp.zeros((), params.mass.dtype))
-    read = jax.jit(jax.vmap(lambda q, v: set_qpos_qvel(model, params, template, q, v)))
-    state = read(qpos.reshape(-1, qpos.shape[-1]), qvel.reshape(-1, qvel.shape[-1]))
+    state = _kinematics_reader(model)(params, qpos.reshape(-1, qpos.shape[-1]), qvel.reshape(-1, qvel.shape[-1]))
     return {name: np.asarray(getattr(state, name), np.float64).reshape(batch + getattr(state, name).shape[1:])
             for name in ("pos", "quat", "vel", "angvel")}
 
@@ -126,10 +137,7 @@ def load_joint_trajectories(path, model: Model, params: Params, *, sample_dt: fl
         raise ValueError(f"{source}: unknown angvel_frame {angvel_frame!r}; valid: 'world', 'body'")
     coordinates = _floating_base_joints(model, source)
     tree = model.joints
-    try:
-        data = dict(np.load(source, allow_pickle=False))
-    except (OSError, ValueError) as error:
-        raise ValueError(f"{source}: not a readable .npz file ({error})") from None
+    data = _read_npz(source)
     states, start = np.asarray(_require(data, "states", source)), _require(data, "start", source)
     joints = coordinates.size
     if states.ndim != 2 or states.shape[1] != tree.nq + tree.nv:
@@ -152,7 +160,7 @@ def load_joint_trajectories(path, model: Model, params: Params, *, sample_dt: fl
                          f"quaternion (norm {norm[row]:.6g}; columns are w, x, y, z)")
     quat = quat / norm[:, None]
     velocity = states[:, tree.nq:]
-    angvel = velocity[:, 0:3] if angvel_frame == "body" else _rotate(quat, velocity[:, 0:3], inverse=True)
+    angvel = velocity[:, 0:3] if angvel_frame == "body" else rotate_vectors(quat, velocity[:, 0:3], inverse=True)
     qpos = np.concatenate([states[:, 4:7], quat, states[:, 7:tree.nq]], axis=1)
     qvel = np.concatenate([velocity[:, 3:6], angvel, velocity[:, 6:]], axis=1)
     hinges = [tree.qpos_adr[j] for j, kind in enumerate(tree.joint_kind) if kind == "hinge"]
@@ -168,10 +176,23 @@ def load_joint_trajectories(path, model: Model, params: Params, *, sample_dt: fl
     return make_trajectories(pieces, sample_dt, ids=data.get("toss_id", data.get("ids")), source=source)
 
 
-def _slope(time, values):
-    """Least-squares slope of ``values`` (F, m) against ``time`` (F,)."""
+def _line_fit(time, values):
+    """Least-squares line through ``values`` (F, m) against ``time`` (F,): (fitted values (F, m), slope (m,))."""
     design = np.stack([np.ones_like(time), time], axis=1)
-    return np.linalg.lstsq(design, values, rcond=None)[0][1]
+    coefficients = np.linalg.lstsq(design, values, rcond=None)[0]
+    return design @ coefficients, coefficients[1]
+
+
+def _centre_of_mass(params: Params, pos):
+    """(..., 3) mass-weighted mean of the bodies' centres ``pos`` (..., n, 3)."""
+    mass = np.asarray(params.mass, np.float64)
+    return np.einsum("...nd,n->...d", pos, mass / mass.sum())
+
+
+def _base_turns(trajectories: Trajectories, k: int, start: int, window):
+    """(F, 3) body-frame rotation vectors log(q_base(start)⁻¹ q_base(j)) of trajectory k over the samples ``window``."""
+    base = trajectories.qpos[k, :, 3:7]
+    return quat_log(quat_multiply(quat_conjugate(base[start])[None], base[window]))
 
 
 def estimate_joint_starts(model: Model, params: Params, trajectories: Trajectories, first_contact) -> tuple:
@@ -187,8 +208,7 @@ def estimate_joint_starts(model: Model, params: Params, trajectories: Trajectori
     """
     _floating_base_joints(model, trajectories.source)
     dt, gravity = trajectories.sample_dt, np.asarray(params.gravity, np.float64)
-    mass = np.asarray(params.mass, np.float64)
-    com = np.einsum("ktnd,n->ktd", trajectories.pos, mass / mass.sum())  # (K, T, 3)
+    com = _centre_of_mass(params, trajectories.pos)  # (K, T, 3)
     first_contact = np.asarray(first_contact, dtype=np.int64)
     start = np.maximum(0, first_contact - SAMPLES_BEFORE_CONTACT)
     rows = np.arange(trajectories.num_trajectories)
@@ -199,18 +219,16 @@ def estimate_joint_starts(model: Model, params: Params, trajectories: Trajectori
         s, c = int(start[k]), int(first_contact[k])
         window = np.arange(max(0, s - RATE_HALF_WINDOW), min(c - 1, s + RATE_HALF_WINDOW) + 1)
         time = (window - s) * dt
-        base = trajectories.qpos[k, :, 3:7]
-        turned = quat_log(quat_multiply(quat_conjugate(base[s])[None], base[window]))  # body frame at s
-        qvel[k, 3:6] = _slope(time, turned)
-        qvel[k, 6:] = _slope(time, trajectories.qpos[k, window, 7:])
+        qvel[k, 3:6] = _line_fit(time, _base_turns(trajectories, k, s, window))[1]
+        qvel[k, 6:] = _line_fit(time, trajectories.qpos[k, window, 7:])[1]
         free_time = (np.arange(c) - s) * dt
-        com_vel[k] = _slope(free_time, com[k, :c] - 0.5 * free_time[:, None] ** 2 * gravity)
+        com_vel[k] = _line_fit(free_time, com[k, :c] - 0.5 * free_time[:, None] ** 2 * gravity)[1]
     # The base's linear velocity adds to every body's: it is the centre of mass's, less what the
     # rotations and joint rates give it.
     still = qvel.copy()
     still[:, 0:3] = 0.0
     moved = body_poses(model, params, qpos, still)["vel"]  # (K, n, 3)
-    qvel[estimated, 0:3] = (com_vel - np.einsum("knd,n->kd", moved, mass / mass.sum()))[estimated]
+    qvel[estimated, 0:3] = (com_vel - _centre_of_mass(params, moved))[estimated]
     return start, qpos, qvel
 
 
@@ -263,23 +281,19 @@ def free_flight_noise(model: Model, params: Params, trajectories: Trajectories, 
         (position noise (m), rotation noise (rad)).
     """
     dt, gravity = trajectories.sample_dt, np.asarray(params.gravity, np.float64)
-    mass = np.asarray(params.mass, np.float64)
-    com = np.einsum("ktnd,n->ktd", trajectories.pos, mass / mass.sum())
+    com = _centre_of_mass(params, trajectories.pos)
     position, rotation = [], []
     for k, c in enumerate(np.asarray(first_contact)):
         if c < MIN_ESTIMATE_SAMPLES:
             continue
         time = np.arange(c) * dt
-        design = np.stack([np.ones(c), time], axis=1)
         heights = com[k, :c] - 0.5 * time[:, None] ** 2 * gravity
-        fitted = design @ np.linalg.lstsq(design, heights, rcond=None)[0]
+        fitted = _line_fit(time, heights)[0]
         position.append(np.sqrt(np.mean((fitted - heights) ** 2) * c / (c - 2)))
         s = max(0, c - SAMPLES_BEFORE_CONTACT)
         window = np.arange(max(0, s - RATE_HALF_WINDOW), c)
-        base = trajectories.qpos[k, :, 3:7]
-        turned = quat_log(quat_multiply(quat_conjugate(base[s])[None], base[window]))
-        design = np.stack([np.ones(window.size), (window - s) * dt], axis=1)
-        fitted = design @ np.linalg.lstsq(design, turned, rcond=None)[0]
+        turned = _base_turns(trajectories, k, s, window)
+        fitted = _line_fit((window - s) * dt, turned)[0]
         rotation.append(np.sqrt(np.mean(np.sum((fitted - turned) ** 2, -1)) * window.size / (window.size - 2)))
     return float(np.median(position)), float(np.median(rotation))
 

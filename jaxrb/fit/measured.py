@@ -172,8 +172,8 @@ class Trajectories:
         return self.subset(np.sort(order[:cut])), self.subset(np.sort(order[cut:]))
 
 
-def _rotate(quat, vectors, inverse=False):
-    """Rotate (..., 3) ``vectors`` by (..., 4) unit ``quat`` (or by its inverse), in NumPy."""
+def rotate_vectors(quat, vectors, inverse=False):
+    """Rotate (..., 3) ``vectors`` by (..., 4) unit ``quat`` (w, x, y, z; or by its inverse), in NumPy float64."""
     w, axis = quat[..., :1], quat[..., 1:]
     if inverse:
         axis = -axis
@@ -268,7 +268,7 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
                              f"(norm {norm[sample, body]:.6g}; columns are w, x, y, z)")
         arrays["quat"] = arrays["quat"] / norm[..., None]
         if angvel_frame == "body" and "angvel" in arrays:
-            arrays["angvel"] = _rotate(arrays["quat"], arrays["angvel"])
+            arrays["angvel"] = rotate_vectors(arrays["quat"], arrays["angvel"])
         checked.append(arrays)
     length = np.array([a["pos"].shape[0] for a in checked])
     longest = int(length.max())
@@ -286,6 +286,14 @@ def make_trajectories(pieces: Sequence[dict], sample_dt: float, *, angvel_frame:
     return Trajectories(pos=padded("pos"), quat=padded("quat"), vel=padded("vel"), angvel=padded("angvel"),
                         length=length, sample_dt=float(sample_dt), ids=ids, source=source,
                         qpos=padded("qpos"), qvel=padded("qvel"))
+
+
+def _read_npz(source: str) -> dict:
+    """The arrays of a ``.npz`` file; a ValueError naming it if it cannot be read."""
+    try:
+        return dict(np.load(source, allow_pickle=False))
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{source}: not a readable .npz file ({error})") from None
 
 
 def _require(data, name, source):
@@ -324,10 +332,7 @@ def load_trajectories(path, *, sample_dt: Optional[float] = None,
             anything malformed, or a missing ``sample_dt``/``angvel_frame``.
     """
     source = os.fspath(path)
-    try:
-        data = dict(np.load(source, allow_pickle=False))
-    except (OSError, ValueError) as error:
-        raise ValueError(f"{source}: not a readable .npz file ({error})") from None
+    data = _read_npz(source)
     start = _require(data, "start", source)
     if "states" in data:
         states = np.asarray(data["states"])
