@@ -173,7 +173,16 @@ class Trajectories:
 
 
 def rotate_vectors(quat, vectors, inverse=False):
-    """Rotate (..., 3) ``vectors`` by (..., 4) unit ``quat`` (w, x, y, z; or by its inverse), in NumPy float64."""
+    """Rotate vectors by unit quaternions (or by their inverses), in NumPy.
+
+    Args:
+        quat: (..., 4) unit quaternions (w, x, y, z), body to world.
+        vectors: (..., 3) the vectors.
+        inverse: rotate by the inverse (world to body).
+
+    Returns:
+        (..., 3) the rotated vectors.
+    """
     w, axis = quat[..., :1], quat[..., 1:]
     if inverse:
         axis = -axis
